@@ -1,0 +1,1 @@
+"""Device drivers behind small interfaces (camera, turntable) and their simulators."""
