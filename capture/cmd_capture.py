@@ -1,0 +1,73 @@
+"""``brdfrig capture run PLAN.toml --out DIR`` and ``brdfrig capture resume DIR``: shoot a session, then fit it.
+
+``run`` validates the plan, prints it (shots, expected time, how many scenes the
+requested model needs) and shoots it into a new session directory; ``resume``
+finishes a stopped or killed session without reshooting what is stored and
+verified.  When the session is complete both run the pipeline (merge, probe,
+fit, BRDF files and figures) unless ``--no-fit``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser("capture", help="shoot a capture session on the rig, or resume one",
+                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="capture_command", required=True, metavar="ACTION")
+    p_run = sub.add_parser("run", help="run a session plan into a new session directory")
+    p_run.add_argument("plan", help="session plan TOML file (e.g. config/sim-bench.toml)")
+    p_run.add_argument("--out", required=True, help="new session directory (must not exist, or be empty)")
+    p_run.add_argument("--rig", help="rig TOML file whose [rig] replaces the plan's")
+    p_run.add_argument("--fit", dest="fit_file", help="fit preset TOML file whose [fit] replaces the plan's")
+    p_run.add_argument("--dry-run", action="store_true", help="print the plan and exit without shooting")
+    p_resume = sub.add_parser("resume", help="finish a stopped or killed session")
+    p_resume.add_argument("dir", help="session directory")
+    for p in (p_run, p_resume):
+        p.add_argument("--yes", action="store_true",
+                       help="do not prompt between operator scenes (assume each is set up)")
+        p.add_argument("--no-fit", action="store_true", help="stop after shooting; fit later with `brdfrig refit`")
+        p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from capture.session import resume_session, run_session
+
+    prompt = None if args.yes else input
+    progress = not args.no_progress
+
+    def echo(text: str) -> None:
+        print(text, flush=True)
+
+    if args.capture_command == "run":
+        from capture.config import load_session_config
+        from capture.plan import build_plan, describe_plan
+
+        config = load_session_config(args.plan, args.rig, args.fit_file)
+        if args.dry_run:
+            echo(describe_plan(build_plan(config)))
+            return 0
+        status, store = run_session(config, args.out, prompt=prompt, progress=progress, echo=echo)
+    else:
+        status, store = resume_session(args.dir, prompt=prompt, progress=progress, echo=echo)
+    if status != "complete":
+        echo(f"session paused at an operator prompt; continue with `brdfrig capture resume {store.root}`")
+        return 0
+    echo(f"session complete: {len(store.files)} files in {store.root} (manifest {store.root / 'manifest.json'})")
+    if args.no_fit:
+        echo(f"fit it with `brdfrig refit {store.root}`")
+        return 0
+    from capture.pipeline import run_pipeline
+
+    result = run_pipeline(store.root, progress=progress, echo=echo)
+    echo(f"results in {result.results_dir}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit("use `brdfrig capture ...`")

@@ -1,0 +1,89 @@
+"""Figures of a fit, after the seed's figure 6: measured, rendered, difference, difference x4.
+
+One row per scene shown (at most ``max_rows``, spread over the session), four
+columns: the measured sphere, the fitted BRDF rendered under that scene's
+measured lighting, ``|measured - rendered|`` and the same magnified by two
+f-stops (x4).  All four share one tone map (linear radiance scaled so that the
+99.5th percentile of the measured sphere is 1, then sRGB-like gamma 1/2.2), so
+the difference images are on the scale of the image itself.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["fit_figure", "tone_map"]
+
+
+def tone_map(rgb: np.ndarray, scale: float) -> np.ndarray:
+    """Linear radiance (H, W, C) -> displayable (H, W, 3) in [0, 1]: ``clip(rgb * scale) ** (1/2.2)``."""
+    img = np.clip(np.nan_to_num(rgb) * scale, 0.0, 1.0) ** (1.0 / 2.2)
+    return np.repeat(img, 3, axis=-1) if img.shape[-1] == 1 else img
+
+
+def _disc_image(rows, cols, values, shape) -> np.ndarray:
+    img = np.zeros(shape + (values.shape[1],))
+    img[rows, cols] = values
+    return img
+
+
+def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "", max_rows: int = 3) -> Path:
+    """Write the measured / rendered / difference / difference x4 figure as a PNG (atomically).
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.png``.
+    scenes : list of fit.scene.Scene
+        The sample's scenes (lighting + observed pixels) as given to the fitter.
+    pixels : hdr.sphere.SpherePixels
+        Row/column of each of the scenes' pixels (same order as ``Scene.normals``).
+    brdf : fit.brdf.FittedBRDF
+        The fitted BRDF (rendered with ``brdf.predict``).
+    title : str
+        Figure title (sample name, model, error).
+    max_rows : int
+        Scenes shown, evenly spread over the session.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from capture.store import atomic_write_bytes
+
+    rows, cols = np.asarray(pixels.rows), np.asarray(pixels.cols)
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    shape = (int(r1 - r0), int(c1 - c0))
+    shown = sorted(set(np.linspace(0, len(scenes) - 1, min(max_rows, len(scenes))).round().astype(int)))
+    fig, axes = plt.subplots(len(shown), 4, figsize=(10, 2.6 * len(shown) + 0.6), squeeze=False)
+    for ax_row, s in zip(axes, shown):
+        scene = scenes[s]
+        measured = _disc_image(rows - r0, cols - c0, scene.radiance, shape)
+        rendered = _disc_image(rows - r0, cols - c0, brdf.predict(scene.env, scene.normals), shape)
+        w = scene.weights > 0
+        scale = 1.0 / max(float(np.percentile(scene.radiance[w], 99.5)), 1e-12) if w.any() else 1.0
+        diff = np.abs(measured - rendered)
+        err = float(np.sqrt(np.sum((rendered[rows - r0, cols - c0][w] - scene.radiance[w]) ** 2)
+                            / np.sum(scene.radiance[w] ** 2))) if w.any() else float("nan")
+        panels = [
+            (measured, f"scene {s + 1}: measured"),
+            (rendered, "rendered"),
+            (diff, f"difference ({100 * err:.1f}% RMS)"),
+            (4.0 * diff, "difference x4"),
+        ]
+        for ax, (img, label) in zip(ax_row, panels):
+            ax.imshow(tone_map(img, scale), interpolation="nearest")
+            ax.set_title(label, fontsize=9)
+            ax.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return atomic_write_bytes(path, buf.getvalue())

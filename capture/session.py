@@ -1,0 +1,332 @@
+"""Run a capture plan on the rig into a crash-safe session directory, and resume it.
+
+:func:`run_session` walks the plan scene by scene, table angle by table angle,
+exposure by exposure, storing each camera file the moment it arrives
+(``capture.store``).  What counts as done is what the manifest lists and
+verifies, so a session killed at any point (power cut, SIGKILL, Ctrl-C, full
+disk) is finished by :func:`resume_session` without reshooting anything
+complete: files that fail their checksum are set aside (kept on disk,
+untracked) and shot again under a new name.
+
+Scenes come from the table (``carries = "rig"``: each angle is a new lighting)
+or from the operator (``carries = "samples"``: the run pauses before each scene
+and prompts; answering ``q`` stops it, to be resumed later).  Ctrl-C stops the
+table, records an ``interrupted`` stop in the journal and re-raises.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import math
+import sys
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from capture.config import SessionConfig, stored_session_config
+from capture.plan import Plan, Shot, auto_bracket, build_plan, meter_range, shot_key
+from capture.store import DiskFullError, SessionStore
+
+__all__ = ["run_session", "resume_session", "open_rig", "completed_shots", "frame_mask", "RAW_SUBDIR"]
+
+RAW_SUBDIR = "raw"
+#: Metering steps down by this many stops while the metering frame has clipped pixels.
+METER_STEP_STOPS = 4
+METER_MAX_SHOTS = 3
+#: Fraction of clipped pixels (in the probe/sample discs) above which metering steps down.
+METER_CLIP_FRACTION = 1e-4
+
+
+@contextlib.contextmanager
+def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
+    """Connect the configured turntable and camera; yield ``(turntable, camera)``, disconnect on exit.
+
+    ``sim`` backends run D's GRBL firmware simulator on a pseudo-terminal, driven
+    by the real :class:`rig.turntable.GrblTurntable`, and the simulated camera
+    reading the simulator's physical table angle.  The turntable is stopped on
+    the way out, whatever happened.
+    """
+    from rig.turntable import GrblTurntable
+
+    tt_cfg, cam_cfg = config.rig.turntable, config.rig.camera
+    with contextlib.ExitStack() as stack:
+        table_state = None
+        if tt_cfg.backend == "sim":
+            from rig.grbl_sim import GrblSimulator
+
+            sim = stack.enter_context(GrblSimulator(**_sim_table_options(config)))
+            port, table_state = sim.port, sim
+        else:
+            port = tt_cfg.port
+        turntable = None
+        if tt_cfg.backend != "none":
+            turntable = stack.enter_context(
+                GrblTurntable(port, tt_cfg.baud, tt_cfg.steps_per_degree, tt_cfg.backlash_deg,
+                              homing_timeout_s=tt_cfg.timeout_s)
+            )
+            turntable.home()
+        if cam_cfg.backend == "sim":
+            from rig.sim_bench import SimBench
+            from rig.sim_camera import SimulatedCamera
+
+            bench = SimBench(**{k: v for k, v in config.rig.sim.items() if k not in _SIM_TABLE_KEYS},
+                             carries=config.rig.carries)
+            camera = SimulatedCamera(bench, table_state, **_sim_camera_options(config))
+        elif cam_cfg.backend == "gphoto2":
+            from rig.gphoto import GphotoCamera
+
+            camera = GphotoCamera()
+        else:
+            from rig.watch_folder import WatchFolderCamera
+
+            camera = WatchFolderCamera(cam_cfg.watch_dir, timeout_s=cam_cfg.timeout_s)
+        stack.enter_context(camera)
+        yield turntable, camera
+
+
+_SIM_TABLE_KEYS = ("table_start_deg",)
+
+
+def _sim_table_options(config: SessionConfig) -> dict:
+    """The simulated table's true mechanics: the configured ones (a correctly set-up board)."""
+    tt = config.rig.turntable
+    return {
+        "steps_per_degree": tt.steps_per_degree,
+        "backlash_deg": tt.backlash_deg,
+        "max_rate_deg_s": tt.speed_deg_s,
+        "baud": tt.baud,
+        "start_angle_deg": float(config.rig.sim.get("table_start_deg", 37.0)),
+    }
+
+
+def _sim_camera_options(config: SessionConfig) -> dict:
+    return {}
+
+
+def frame_mask(shape: tuple[int, int], config: SessionConfig) -> np.ndarray | None:
+    """Union of the probe and sample discs given in the plan, as an (H, W) bool mask (None if none given)."""
+    circles = [config.plan.probe.circle] + [s.circle for s in config.plan.samples]
+    circles = [c for c in circles if c is not None]
+    if not circles:
+        return None
+    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
+    mask = np.zeros(shape, bool)
+    for cx, cy, r in circles:
+        mask |= (xx + 0.5 - cx) ** 2 + (yy + 0.5 - cy) ** 2 <= r * r
+    return mask
+
+
+def completed_shots(store: SessionStore) -> dict[str, str]:
+    """Shot keys the manifest lists (exposures and metering frames) -> relative path of their file."""
+    return {e["key"]: rel for rel, e in store.files.items() if e.get("kind") in ("exposure", "meter")}
+
+
+class _Runner:
+    """One pass over the plan (fresh or resumed): see :func:`run_session`."""
+
+    def __init__(self, store: SessionStore, plan: Plan, turntable, camera, *, prompt: Callable[[str], str] | None,
+                 progress: bool):
+        self.store, self.plan, self.cfg = store, plan, plan.config
+        self.turntable, self.camera = turntable, camera
+        self.prompt, self.progress = prompt, progress
+        self.done = completed_shots(store)
+        self.angle: float | None = None
+
+    # -------------------------------------------------------------------------------- devices
+    def _move(self, angle: float) -> None:
+        if self.turntable is None or self.angle == angle:
+            return
+        self.turntable.move_to(angle)
+        self.angle = angle
+        self.store.append("moved", angle_deg=angle)
+
+    def _shoot(self, key: str, time_s: float, kind: str, scene: int, angle: float) -> str:
+        cam = self.cfg.rig.camera
+        self.camera.set_exposure(time_s, cam.iso, cam.f_number)
+        path = self.camera.capture(self.store.incoming)
+        rel = self.store.store_file(path, RAW_SUBDIR, key, kind=kind, key=key, scene=scene, angle_deg=angle,
+                                    time_s=time_s)
+        self.done[key] = rel
+        return rel
+
+    # -------------------------------------------------------------------------------- auto exposure
+    def _bracket(self, scene: int, angle: float) -> tuple[float, ...]:
+        """The scene's exposure times: fixed, or from the journal, or metered now (journalled)."""
+        if self.plan.bracket is not None:
+            return self.plan.bracket
+        for rec in reversed(self.store.journal()):
+            if rec.get("event") == "bracket" and rec.get("scene") == scene and all(
+                k in self.done for k in rec["meter_keys"]
+            ):
+                return tuple(rec["times"])
+        from hdr.raw import decode_raw
+
+        plan, cam = self.cfg.plan, self.cfg.rig.camera
+        self._move(angle)
+        t, keys, e_lo, e_hi = plan.meter_time_s, [], None, None
+        for i in range(METER_MAX_SHOTS):
+            key = shot_key(scene, angle, "m", i)
+            rel = self.done.get(key) or self._shoot(key, t, "meter", scene, angle)
+            keys.append(key)
+            frame = decode_raw(self.store.root / rel)
+            lo, hi, clipped = meter_range(frame, t, cam.full_well_e, frame_mask(frame.shape[:2], self.cfg))
+            e_lo = lo if e_lo is None else e_lo  # the longest frame measures the dark end best
+            e_hi = hi
+            if clipped <= METER_CLIP_FRACTION:
+                break
+            t /= 2.0**METER_STEP_STOPS
+        times = auto_bracket(e_lo, e_hi, full_well_e=cam.full_well_e, read_noise_e=cam.read_noise_e,
+                             target_snr=plan.target_snr, base_time_s=plan.meter_time_s, stop_step=plan.stop_step,
+                             max_exposures=plan.max_exposures)
+        self.store.append("bracket", scene=scene, meter_keys=keys, times=list(times), e_lo=e_lo, e_hi=e_hi)
+        return times
+
+    # -------------------------------------------------------------------------------- the run
+    def _scene_ready(self, scene: int, resumed: bool) -> bool:
+        """Operator prompt before a scene (carries = samples); False if the operator stops."""
+        if self.cfg.rig.carries == "rig" or self.prompt is None:
+            return True
+        what = "check the bench is as it was for" if resumed else "set up (move the bench or change the lights) for"
+        answer = self.prompt(
+            f"\n{what} scene {scene + 1}/{self.plan.n_scenes}, then press Enter (q + Enter to stop; "
+            f"`brdfrig capture resume {self.store.root}` continues later): "
+        )
+        if answer.strip().lower() in ("q", "quit", "stop"):
+            return False
+        self.store.append("scene_ready", scene=scene)
+        return True
+
+    def run(self) -> str:
+        from tqdm import tqdm
+
+        plan = self.plan
+        total = sum(len(a) for a in plan.angles) * plan.max_shots_per_angle()
+        bar = tqdm(total=total, unit="shot", disable=not self.progress, file=sys.stderr, dynamic_ncols=True)
+        try:
+            for scene, angles in enumerate(plan.angles):
+                started = any(e.get("scene") == scene for e in self.store.files.values())
+                scene_shots = self._scene_remaining(scene, angles)
+                if scene_shots == 0:
+                    bar.update(len(angles) * plan.max_shots_per_angle())
+                    continue
+                if not self._scene_ready(scene, started):
+                    return "paused"
+                self.store.append("scene_start", scene=scene, angles=list(angles))
+                for angle in angles:
+                    times = self._bracket(scene, angle)
+                    shots = plan.shots(scene, angle, times)
+                    bar.update(plan.max_shots_per_angle() - len(shots))
+                    for shot in shots:
+                        bar.set_description(
+                            f"scene {scene + 1}/{plan.n_scenes} angle {angle:g} exp {shot.index + 1}/{len(shots)}"
+                        )
+                        if shot.key not in self.done:
+                            self._move(angle)
+                            self._shoot(shot.key, shot.time_s, "exposure", scene, angle)
+                        bar.update(1)
+                self.store.append("scene_done", scene=scene)
+            return "complete"
+        finally:
+            bar.close()
+
+    def _scene_remaining(self, scene: int, angles: tuple[float, ...]) -> int:
+        """Shots still missing in ``scene`` (unknown auto brackets count as missing)."""
+        missing = 0
+        for angle in angles:
+            if self.plan.bracket is None and not any(
+                r.get("event") == "bracket" and r.get("scene") == scene for r in self.store.journal()
+            ):
+                return 1
+            times = self.plan.bracket
+            if times is None:
+                times = next(tuple(r["times"]) for r in reversed(self.store.journal())
+                             if r.get("event") == "bracket" and r.get("scene") == scene)
+            missing += sum(s.key not in self.done for s in self.plan.shots(scene, angle, times))
+        return missing
+
+
+def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory) -> str:
+    """Run the plan with the rig open; always journal a final ``stop`` record with the exit status."""
+    status, reason = "error", ""
+    try:
+        with rig_factory(plan.config) as (turntable, camera):
+            runner = _Runner(store, plan, turntable, camera, prompt=prompt, progress=progress)
+            try:
+                status = runner.run()
+            except BaseException:
+                if turntable is not None:
+                    with contextlib.suppress(Exception):
+                        turntable.stop()
+                raise
+        return status
+    except KeyboardInterrupt:
+        status, reason = "interrupted", "Ctrl-C: turntable stopped"
+        raise
+    except OSError as exc:
+        if exc.errno == errno.ENOSPC:
+            reason = str(exc)
+            stored = len(store.files)
+            raise DiskFullError(
+                errno.ENOSPC,
+                f"{exc.strerror}; the {stored} files stored so far in {store.root} are intact; free some space "
+                f"and run `brdfrig capture resume {store.root}`",
+            ) from exc
+        reason = str(exc)
+        raise
+    except BaseException as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+        raise
+    finally:
+        with contextlib.suppress(OSError):  # the disk may still be full: the journal then ends without it
+            store.append("stop", status=status, reason=reason, files=len(store.files))
+
+
+def run_session(config: SessionConfig, out_dir: str | Path, *, prompt: Callable[[str], str] | None = input,
+                progress: bool = True, rig_factory=open_rig, echo: Callable[[str], None] | None = None) -> tuple[str, SessionStore]:
+    """Create the session directory ``out_dir`` and run the whole plan.
+
+    Returns ``(status, store)`` with status ``"complete"`` or ``"paused"`` (operator
+    stopped at a scene prompt).  Raises ``StoreError`` if ``out_dir`` exists and is
+    not an empty directory, ``DiskFullError`` on a full disk, and re-raises
+    ``KeyboardInterrupt`` after stopping the table.
+    """
+    plan = build_plan(config)
+    if echo:
+        echo(_describe(plan))
+    store = SessionStore.create(out_dir, config.to_dict())
+    store.append("run_start", resumed=False)
+    return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory), store
+
+
+def resume_session(session_dir: str | Path, *, prompt: Callable[[str], str] | None = input, progress: bool = True,
+                   rig_factory=open_rig, echo: Callable[[str], None] | None = None) -> tuple[str, SessionStore]:
+    """Finish a stopped or killed session: verify what is stored, set aside what fails, shoot the rest.
+
+    Returns ``(status, store)`` as :func:`run_session`.
+    """
+    store = SessionStore.open(session_dir)
+    config = stored_session_config(store.config, f"{Path(session_dir) / 'session.json'}")
+    check = store.verify(prefix=RAW_SUBDIR + "/")
+    leftovers = store.clean_incoming()
+    if check.corrupt or check.missing:
+        store.reject(check.corrupt + check.missing, "failed verification on resume; shot again")
+    plan = build_plan(config)
+    if echo:
+        echo(_describe(plan))
+        echo(
+            f"resuming {store.root}: {len(check.ok)} stored files verified"
+            + (f", {len(check.corrupt) + len(check.missing)} failed and will be shot again "
+               f"({', '.join(check.corrupt + check.missing)})" if check.corrupt or check.missing else "")
+            + (f", {len(check.untracked)} untracked file(s) from an interrupted write kept aside" if check.untracked else "")
+        )
+    store.append("run_start", resumed=True, verified=len(check.ok), rejected=check.corrupt + check.missing,
+                 untracked=check.untracked, incoming_removed=leftovers)
+    return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory), store
+
+
+def _describe(plan: Plan) -> str:
+    from capture.plan import describe_plan
+
+    return describe_plan(plan)

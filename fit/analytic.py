@@ -1,0 +1,308 @@
+"""Analytic isotropic BRDFs: the materials of the ground truth, the simulator and the microfacet fit.
+
+Three families, each with one parameter value per colour channel (scalars
+broadcast to every channel):
+
+- :class:`Lambertian` ``rho = albedo / pi``;
+- :class:`BlinnPhong` ``rho = diffuse/pi + specular * (e + 8) / (8 pi) * (n.h)^e``
+  (the energy-normalised Blinn-Phong lobe, Akenine-Moller et al., *Real-Time
+  Rendering*, 3rd ed., eq. 7.49);
+- :class:`GGX` ``rho = diffuse/pi + F(h.wi) D(n.h) G2(wi, wo) / (4 (n.wi)(n.wo))``
+  with the GGX / Trowbridge-Reitz distribution ``D`` (Walter et al. 2007,
+  roughness ``alpha``), the height-correlated Smith shadowing-masking
+  ``G2 = 1 / (1 + Lambda(wi) + Lambda(wo))`` (Heitz 2014, eq. 99) and Schlick's
+  Fresnel ``F = f0 + (f90 - f0) (1 - h.wi)^5`` (``f90 = 1`` is the physical
+  Schlick form; other values let the microfacet fit keep its amplitudes linear).
+
+Conventions (``../shared/docs/MATH.md``): ``rho`` in 1/sr without the cosine
+factor, world-frame unit vectors, ``rho = 0`` when either direction is below
+the horizon of the normal.  ``evaluate`` uses the normal's local frame with
+``delta_phi = phi_o - phi_i`` (``delta_phi = pi`` is the mirror configuration).
+
+An isotropic BRDF depends on the directions only through ``cos_i = n.wi``,
+``cos_o = n.wo`` and ``cos_io = wi.wo``; the numba function :func:`rho_channel`
+takes exactly those, so the vectorised :meth:`AnalyticBRDF.rho`, the
+ground-truth renderer (:mod:`fit.groundtruth`) and the microfacet fit share one
+implementation of every formula.  A model's parameters travel to compiled code
+as an integer ``kind`` and a ``(C, NUM_PARAMS)`` float array (:meth:`AnalyticBRDF.kernel_params`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from fit.brdf import register_model
+from fit.scene import Environment
+
+__all__ = [
+    "KIND_LAMBERTIAN",
+    "KIND_BLINN_PHONG",
+    "KIND_GGX",
+    "NUM_PARAMS",
+    "AnalyticBRDF",
+    "Lambertian",
+    "BlinnPhong",
+    "GGX",
+    "ggx_ndf",
+    "smith_lambda",
+    "ggx_lobe",
+    "rho_channel",
+    "rho_from_cosines",
+]
+
+KIND_LAMBERTIAN = 0
+KIND_BLINN_PHONG = 1
+KIND_GGX = 2
+NUM_PARAMS = 4
+"""Length of one channel's parameter row: Lambertian (albedo, 0, 0, 0); Blinn-Phong
+(diffuse, specular, exponent, 0); GGX (diffuse, f0, f90, alpha)."""
+
+
+@numba.njit(cache=True, fastmath=False)
+def ggx_ndf(cos_h: float, alpha: float) -> float:
+    """GGX normal distribution ``D`` (1/sr) at ``cos_h = n.h``; ``int D (n.h) dw_h = 1`` over the hemisphere."""
+    if cos_h <= 0.0:
+        return 0.0
+    a2 = alpha * alpha
+    t = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return a2 / (math.pi * t * t)
+
+
+@numba.njit(cache=True, fastmath=False)
+def smith_lambda(cos_t: float, alpha: float) -> float:
+    """Smith ``Lambda`` of GGX for a direction at ``cos_t = n.w > 0``: ``(sqrt(1 + alpha^2 tan^2) - 1) / 2``."""
+    c2 = cos_t * cos_t
+    tan2 = max(1.0 - c2, 0.0) / c2
+    return 0.5 * (math.sqrt(1.0 + alpha * alpha * tan2) - 1.0)
+
+
+@numba.njit(cache=True, fastmath=False)
+def ggx_lobe(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> tuple[float, float]:
+    """The GGX lobe without Fresnel, ``D G2 / (4 cos_i cos_o)`` (1/sr), and ``cos_d = h.wi``.
+
+    Both directions must be above the horizon (``cos_i, cos_o > 0``); returns
+    (0, 1) when ``wi = -wo`` (no half vector).
+    """
+    # Half vector h = (wi + wo) / |wi + wo|; |wi + wo|^2 = 2 + 2 wi.wo.
+    norm2 = 2.0 + 2.0 * cos_io
+    if norm2 <= 1e-300:
+        return 0.0, 1.0
+    inv = 1.0 / math.sqrt(norm2)
+    cos_h = (cos_i + cos_o) * inv
+    cos_d = min((1.0 + cos_io) * inv, 1.0)  # h.wi = h.wo
+    g2 = 1.0 / (1.0 + smith_lambda(cos_i, alpha) + smith_lambda(cos_o, alpha))
+    return ggx_ndf(cos_h, alpha) * g2 / (4.0 * cos_i * cos_o), cos_d
+
+
+@numba.njit(cache=True, fastmath=False)
+def rho_channel(kind: int, p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
+    """BRDF value (1/sr) of one channel with parameter row ``p`` (see :data:`NUM_PARAMS`).
+
+    ``cos_i = n.wi``, ``cos_o = n.wo``, ``cos_io = wi.wo``; 0 when either
+    direction is at or below the horizon.
+    """
+    if cos_i <= 0.0 or cos_o <= 0.0:
+        return 0.0
+    diffuse = p[0] / math.pi
+    if kind == KIND_LAMBERTIAN:
+        return diffuse
+    if kind == KIND_BLINN_PHONG:
+        norm2 = 2.0 + 2.0 * cos_io
+        if norm2 <= 1e-300:
+            return diffuse
+        cos_h = (cos_i + cos_o) / math.sqrt(norm2)
+        e = p[2]
+        return diffuse + p[1] * (e + 8.0) / (8.0 * math.pi) * cos_h**e
+    # KIND_GGX: Schlick F = f0 + (f90 - f0) (1 - h.wi)^5
+    lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
+    return diffuse + (p[1] + (p[2] - p[1]) * (1.0 - cos_d) ** 5) * lobe
+
+
+@numba.njit(cache=True, fastmath=False, parallel=True)
+def rho_from_cosines(kind: int, params: np.ndarray, cos_i: np.ndarray, cos_o: np.ndarray, cos_io: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`rho_channel`: cosines (N,), ``params`` (C, NUM_PARAMS) -> rho (N, C)."""
+    n = cos_i.shape[0]
+    nc = params.shape[0]
+    out = np.empty((n, nc))
+    for i in numba.prange(n):
+        for c in range(nc):
+            out[i, c] = rho_channel(kind, params[c], cos_i[i], cos_o[i], cos_io[i])
+    return out
+
+
+def _per_channel(name: str, value, lower: float, upper: float = math.inf) -> np.ndarray:
+    """Validate one parameter as a (C,) float64 array in [lower, upper] (scalar -> C = 1)."""
+    arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must be a scalar or a 1-D sequence of per-channel values, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < lower) or np.any(arr > upper):
+        raise ValueError(f"{name} must be finite and within [{lower}, {upper}], got {arr.tolist()}")
+    return arr
+
+
+def _broadcast_channels(**arrays: np.ndarray) -> dict[str, np.ndarray]:
+    """Broadcast per-channel arrays of length 1 or C to a common C."""
+    sizes = {a.size for a in arrays.values()} - {1}
+    if len(sizes) > 1:
+        raise ValueError(f"per-channel parameters disagree on the channel count: { {k: v.size for k, v in arrays.items()} }")
+    c = sizes.pop() if sizes else 1
+    return {k: np.broadcast_to(v, (c,)).copy() for k, v in arrays.items()}
+
+
+class AnalyticBRDF:
+    """Shared behaviour of the analytic models (implements :class:`fit.brdf.FittedBRDF`).
+
+    Subclasses define ``model``, ``kind`` and :meth:`kernel_params`.
+    """
+
+    model: str
+    kind: int
+
+    @property
+    def channels(self) -> int:
+        return self.kernel_params().shape[0]
+
+    def kernel_params(self) -> np.ndarray:
+        """Parameter rows (C, NUM_PARAMS) float64 for :func:`rho_channel`."""
+        raise NotImplementedError
+
+    def rho(self, wi: np.ndarray, wo: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """BRDF (1/sr) for world-frame unit directions ``wi``, ``wo`` and normals ``n``, each (N, 3) -> (N, C)."""
+        wi, wo, n = (np.asarray(a, dtype=np.float64).reshape(-1, 3) for a in (wi, wo, n))
+        cos_i = np.einsum("ij,ij->i", n, wi)
+        cos_o = np.einsum("ij,ij->i", n, wo)
+        cos_io = np.einsum("ij,ij->i", wi, wo)
+        return rho_from_cosines(self.kind, self.kernel_params(), cos_i, cos_o, cos_io)
+
+    def evaluate(self, theta_i, theta_o, delta_phi) -> np.ndarray:
+        """BRDF (1/sr) at polar angles ``theta_i``, ``theta_o`` and ``delta_phi = phi_o - phi_i`` (radians).
+
+        Returns shape ``broadcast(theta_i, theta_o, delta_phi).shape + (C,)``.
+        """
+        ti, to, dp = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_i, theta_o, delta_phi)))
+        shape = ti.shape
+        ti, to, dp = ti.ravel(), to.ravel(), dp.ravel()
+        cos_io = np.sin(ti) * np.sin(to) * np.cos(dp) + np.cos(ti) * np.cos(to)
+        out = rho_from_cosines(self.kind, self.kernel_params(), np.cos(ti), np.cos(to), cos_io)
+        return out.reshape(shape + (out.shape[1],))
+
+    def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
+        """Radiance (N, C) seen from ``v = (0, 0, 1)``: brute-force quadrature over ``env`` (:mod:`fit.groundtruth`)."""
+        # Deferred import: fit.groundtruth imports this module for rho_channel.
+        from fit.groundtruth import render_groundtruth
+
+        return render_groundtruth(self, normals, env)
+
+    def to_dict(self) -> dict:
+        raise NotImplementedError
+
+
+@register_model("lambertian")
+@dataclass(frozen=True, eq=False)
+class Lambertian(AnalyticBRDF):
+    """Ideal diffuse reflector ``rho = albedo / pi``; ``albedo`` (C,) in [0, 1] (scalar = one channel)."""
+
+    albedo: np.ndarray
+    model = "lambertian"
+    kind = KIND_LAMBERTIAN
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "albedo", _per_channel("albedo", self.albedo, 0.0))
+
+    def kernel_params(self) -> np.ndarray:
+        p = np.zeros((self.albedo.size, NUM_PARAMS))
+        p[:, 0] = self.albedo
+        return p
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "albedo": self.albedo.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Lambertian":
+        return cls(albedo=d["albedo"])
+
+
+@register_model("blinn_phong")
+@dataclass(frozen=True, eq=False)
+class BlinnPhong(AnalyticBRDF):
+    """Lambertian base plus the normalised Blinn-Phong lobe ``specular (e+8)/(8 pi) (n.h)^e``.
+
+    Parameters (per channel, scalars broadcast): ``diffuse`` albedo >= 0,
+    ``specular`` amplitude >= 0 (the lobe's albedo near normal incidence),
+    ``exponent`` e >= 0.
+    """
+
+    diffuse: np.ndarray
+    specular: np.ndarray
+    exponent: np.ndarray
+    model = "blinn_phong"
+    kind = KIND_BLINN_PHONG
+
+    def __post_init__(self) -> None:
+        values = _broadcast_channels(
+            diffuse=_per_channel("diffuse", self.diffuse, 0.0),
+            specular=_per_channel("specular", self.specular, 0.0),
+            exponent=_per_channel("exponent", self.exponent, 0.0),
+        )
+        for k, v in values.items():
+            object.__setattr__(self, k, v)
+
+    def kernel_params(self) -> np.ndarray:
+        return np.stack([self.diffuse, self.specular, self.exponent, np.zeros_like(self.diffuse)], axis=1)
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "diffuse": self.diffuse.tolist(), "specular": self.specular.tolist(), "exponent": self.exponent.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BlinnPhong":
+        return cls(diffuse=d["diffuse"], specular=d["specular"], exponent=d["exponent"])
+
+
+@register_model("ggx")
+@dataclass(frozen=True, eq=False)
+class GGX(AnalyticBRDF):
+    """Lambertian base plus a GGX microfacet lobe with Schlick Fresnel and height-correlated Smith shadowing.
+
+    Parameters (per channel, scalars broadcast): ``alpha`` GGX roughness in
+    (0, inf) (``alpha = perceptual_roughness^2``), ``f0`` Fresnel reflectance
+    at normal incidence >= 0, ``diffuse`` Lambertian albedo >= 0, ``f90``
+    reflectance at grazing incidence (1 = Schlick).  The sum of the diffuse
+    albedo and the lobe's albedo can exceed 1: no energy coupling is imposed.
+    """
+
+    alpha: np.ndarray
+    f0: np.ndarray
+    diffuse: np.ndarray
+    f90: np.ndarray = 1.0
+    model = "ggx"
+    kind = KIND_GGX
+
+    def __post_init__(self) -> None:
+        values = _broadcast_channels(
+            alpha=_per_channel("alpha", self.alpha, 1e-4),
+            f0=_per_channel("f0", self.f0, 0.0),
+            diffuse=_per_channel("diffuse", self.diffuse, 0.0),
+            f90=_per_channel("f90", self.f90, 0.0),
+        )
+        for k, v in values.items():
+            object.__setattr__(self, k, v)
+
+    def kernel_params(self) -> np.ndarray:
+        return np.stack([self.diffuse, self.f0, self.f90, self.alpha], axis=1)
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model,
+            "alpha": self.alpha.tolist(),
+            "f0": self.f0.tolist(),
+            "diffuse": self.diffuse.tolist(),
+            "f90": self.f90.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "GGX":
+        return cls(alpha=d["alpha"], f0=d["f0"], diffuse=d["diffuse"], f90=d.get("f90", 1.0))

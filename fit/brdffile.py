@@ -1,0 +1,118 @@
+"""The BRDF file: versioned, self-describing JSON.
+
+Layout (``format`` and ``version`` are checked on reading)::
+
+    {
+      "format": "brdfrig-brdf",
+      "version": 1,
+      "brdf": {...},            # the model's to_dict(): model, coefficients, band limits
+      "conventions": {...},     # frames, SH basis, units (see CONVENTIONS)
+      "report": {...},          # identifiability, fit statistics, chosen model and why
+      "provenance": {...}       # writer, time, inputs
+    }
+
+Written atomically (temporary name in the same directory, then ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from fit.brdf import FittedBRDF, brdf_from_dict
+
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "save_brdf", "load_brdf"]
+
+FORMAT_NAME = "brdfrig-brdf"
+FORMAT_VERSION = 1
+
+CONVENTIONS = {
+    "document": "MATH.md (brdfrig)",
+    "world_frame": "right-handed; orthographic camera on +z, view direction v = (0, 0, 1)",
+    "local_frame": "R_n = Rz(phi_N) Ry(theta_N); w_o' = (-sin theta_N, 0, cos theta_N)",
+    "sh_basis": "real orthonormal, no Condon-Shortley phase, index l*l + l + m; m > 0 ~ cos(m phi)",
+    "rho_units": "1/sr, no cosine factor; evaluate(theta_i, theta_o, delta_phi = phi_o - phi_i)",
+    "radiance_units": "linear, same units and channels as the lighting",
+    "diffuse_lobe": "B = sum_l a_l sum_m L_lm Y_lm(n) + s_l sum_m L_lm Y_lm(r), r = 2(n.v)n - v",
+    "full": "B = sum tau[l,p,k] L'_{l,k}(n) Y_{p,k}(w_o'), 0 <= k <= min(l, p)",
+}
+
+
+def _jsonable(obj):
+    """Convert numpy scalars/arrays (and non-finite floats) to plain JSON values."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return _jsonable(obj.item())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return str(obj)
+    return obj
+
+
+def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: dict | None = None) -> Path:
+    """Write ``brdf`` and its fit ``report`` to ``path`` (JSON), atomically.
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    path = Path(path)
+    doc = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "brdf": _jsonable(brdf.to_dict()),
+        "conventions": CONVENTIONS,
+        "report": _jsonable(report or {}),
+        "provenance": _jsonable(
+            {"writer": "brdfrig fit.brdffile", "written_utc": _dt.datetime.now(_dt.timezone.utc).isoformat()}
+            | (provenance or {})
+        ),
+    }
+    text = json.dumps(doc, indent=1, allow_nan=False)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if str(path.parent) else ".")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_brdf(path) -> tuple[FittedBRDF, dict]:
+    """Read a BRDF file; returns ``(brdf, report)``.
+
+    Raises
+    ------
+    ValueError
+        Not a brdfrig BRDF file, another format version, or corrupt content.
+    OSError
+        The file cannot be read.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a brdfrig BRDF file (corrupt JSON: {exc})") from exc
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
+        raise ValueError(f"{path}: not a brdfrig BRDF file (format {doc.get('format') if isinstance(doc, dict) else None!r})")
+    if doc.get("version") != FORMAT_VERSION:
+        raise ValueError(f"{path}: BRDF file version {doc.get('version')!r} is not supported (this brdfrig reads {FORMAT_VERSION})")
+    try:
+        brdf = brdf_from_dict(doc["brdf"])
+    except (KeyError, ValueError) as exc:
+        raise ValueError(f"{path}: corrupt BRDF file: {exc}") from exc
+    return brdf, doc.get("report", {})

@@ -1,0 +1,365 @@
+"""``fit_brdf``: fit a BRDF to sphere images under measured lighting, choosing a model the data determine.
+
+Pipeline (``../shared/docs/MATH.md``):
+
+1. Pixels: only finite pixels with positive weight whose normal lies within
+   :data:`DEFAULT_MAX_THETA_DEG` of the view direction are used (the default
+   limb margin: beyond it pixels are grazing, anti-aliased against the
+   background in real and rendered images, and the design is badly
+   conditioned); every exclusion is counted in the report.
+2. Lighting: each scene's environment is projected onto SH once
+   (``fit.shproject``); the rotated lighting ``L'(n)`` is computed once per
+   pixel block for all colour channels, and every solver works from the same
+   streamed QR factor (:mod:`fit.solvers`).
+3. Identifiability from the lighting alone (:mod:`fit.identifiability`):
+   bands without lighting energy are dropped from every model (reported), and
+   ``full`` is only a candidate of ``auto`` at band limits the scenes separate.
+4. Stopping rule (pixels beyond what changes the answer are skipped): pixels
+   of all scenes are visited in one random order, in blocks of
+   :data:`BLOCK_ROWS`; once at least ``3 n`` rows are in, the joint solution is
+   recomputed after every block and its predicted radiance on the held-out
+   pixels compared with the previous one; the stream stops when that relative
+   change stays below ``tol`` (default :data:`STOP_TOL`) for two consecutive blocks.
+5. Held-out check: a random :data:`HELDOUT_FRACTION` of the pixels (at most
+   :data:`HELDOUT_MAX` of them) never enter a fit; each candidate's weighted
+   relative RMS error on them is reported.  ``auto`` keeps only candidates the
+   identifiability analysis calls determined *and* whose pixel system reached
+   full rank, and picks the richest (order :data:`RICHNESS`) whose held-out
+   error is within :data:`SELECT_RTOL` of the best.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from fit.brdf import FittedBRDF
+from fit.identifiability import THETA_MAX_DEG, analyse_lighting
+from fit.models import make_linear_brdf, project_to_full
+from fit.scene import Scene
+from fit.shproject import project_environment
+from fit.solvers import SOLVERS, StreamedQR, solve
+from fit.system import ModelSpec, design_block
+
+__all__ = ["FitResult", "fit_brdf", "MODELS", "RICHNESS", "DEFAULT_MAX_THETA_DEG", "STOP_TOL"]
+
+RICHNESS = ("diffuse", "lobe", "microfacet", "full", "full+prior")
+MODELS = ("auto",) + RICHNESS
+DEFAULT_MAX_THETA_DEG = THETA_MAX_DEG
+STOP_TOL = 1e-3
+BLOCK_ROWS = 2048
+HELDOUT_FRACTION = 0.1
+HELDOUT_MAX = 2000
+SELECT_RTOL = 0.02
+
+
+@dataclass
+class FitResult:
+    """A fitted BRDF and its JSON-able report (identifiability, rank, condition, residuals, choice)."""
+
+    brdf: FittedBRDF
+    report: dict
+
+
+@dataclass
+class _Pool:
+    """Usable pixels of all scenes, flattened."""
+
+    scene: np.ndarray  # (N,) int
+    normals: np.ndarray  # (N, 3)
+    radiance: np.ndarray  # (N, C)
+    weights: np.ndarray  # (N,)
+
+
+def _gather(scenes: list[Scene], max_theta_deg: float) -> tuple[_Pool, dict]:
+    channels = None
+    parts, counts = [], {"pixels": 0, "weight_zero": 0, "non_finite": 0, "beyond_limb_margin": 0, "used": 0}
+    cos_max = math.cos(math.radians(max_theta_deg))
+    for k, s in enumerate(scenes):
+        n = np.asarray(s.normals, dtype=np.float64)
+        b = np.asarray(s.radiance, dtype=np.float64)
+        w = np.asarray(s.weights, dtype=np.float64)
+        env_c = np.asarray(s.env.radiance).shape[1]
+        if b.ndim != 2 or n.shape != (b.shape[0], 3) or w.shape != (b.shape[0],):
+            raise ValueError(f"scene {k}: normals (N,3), radiance (N,C) and weights (N,) disagree: {n.shape}, {b.shape}, {w.shape}")
+        if b.shape[1] != env_c:
+            raise ValueError(f"scene {k}: image has {b.shape[1]} channels but its lighting has {env_c}")
+        if channels is None:
+            channels = b.shape[1]
+        elif b.shape[1] != channels:
+            raise ValueError(f"scene {k}: {b.shape[1]} channels, scene 0 has {channels}")
+        finite = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(n), axis=1) & np.isfinite(w)
+        positive = np.where(np.isfinite(w), w, 0.0) > 0
+        inside = np.where(np.isfinite(n[:, 2]), n[:, 2], -1.0) >= cos_max
+        keep = finite & positive & inside
+        counts["pixels"] += len(w)
+        counts["weight_zero"] += int(np.count_nonzero(~positive))
+        counts["non_finite"] += int(np.count_nonzero(positive & ~finite))
+        counts["beyond_limb_margin"] += int(np.count_nonzero(positive & finite & ~inside))
+        counts["used"] += int(np.count_nonzero(keep))
+        parts.append((np.full(np.count_nonzero(keep), k), n[keep], b[keep], w[keep]))
+    if not scenes:
+        raise ValueError("fit_brdf needs at least one scene")
+    pool = _Pool(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
+    if counts["used"] == 0:
+        raise ValueError(f"no usable pixel: {counts}")
+    return pool, counts
+
+
+def _lighting(scenes: list[Scene], lmax: int) -> list[np.ndarray]:
+    coeffs = []
+    for k, s in enumerate(scenes):
+        seen = int(np.count_nonzero(np.asarray(s.env.solid_angle) > 0))
+        if (lmax + 1) ** 2 > seen / 2:
+            raise ValueError(
+                f"scene {k}: lmax={lmax} needs at least {2 * (lmax + 1) ** 2} seen lighting samples, the environment has {seen}"
+            )
+        c = project_environment(s.env, lmax)
+        if not np.all(np.isfinite(c)):
+            raise ValueError(f"scene {k}: the lighting contains NaN or inf")
+        coeffs.append(c)
+    return coeffs
+
+
+def _design(spec: ModelSpec, coeffs: list[np.ndarray], pool: _Pool, idx: np.ndarray) -> np.ndarray:
+    """Design rows (len(idx), n, C) of pixels ``idx``, grouped by scene."""
+    out = np.empty((len(idx), spec.n_unknowns, pool.radiance.shape[1]))
+    sc = pool.scene[idx]
+    for s in np.unique(sc):
+        rows = np.flatnonzero(sc == s)
+        out[rows] = design_block(spec, coeffs[s], pool.normals[idx[rows]])
+    return out
+
+
+def _rel_error(pred: np.ndarray, target: np.ndarray, weights: np.ndarray) -> float:
+    """Weighted relative RMS error; 0 when prediction and target both vanish."""
+    w = weights[:, None]
+    den = float(np.sum(w * target**2))
+    num = float(np.sum(w * (pred - target) ** 2))
+    if den <= 0:
+        return 0.0 if num <= 0 else math.inf
+    return math.sqrt(num / den)
+
+
+def _fit_linear(spec, coeffs, pool, train, held, solver, x0, tol, progress, label) -> tuple[np.ndarray, dict]:
+    t0 = time.perf_counter()
+    n, nc = spec.n_unknowns, pool.radiance.shape[1]
+    a_h = _design(spec, coeffs, pool, held)
+    qr = StreamedQR(n, nc)
+    min_rows = 3 * n
+    prev, stable, converged = None, 0, False
+    blocks = range(0, len(train), BLOCK_ROWS)
+    for start in tqdm(blocks, desc=f"fit {label}", unit="block", disable=not progress, leave=False):
+        idx = train[start : start + BLOCK_ROWS]
+        qr.add(_design(spec, coeffs, pool, idx), pool.radiance[idx], pool.weights[idx])
+        if qr.rows < min_rows or len(held) == 0:
+            continue
+        pred = np.einsum("inc,nc->ic", a_h, solve(qr, "joint", x0=x0).x)
+        if prev is not None:
+            change = np.linalg.norm(pred - prev) / max(np.linalg.norm(pred), 1e-300)
+            stable = stable + 1 if change < tol else 0
+            if stable >= 2:
+                converged = True
+                break
+        prev = pred
+    sol = solve(qr, solver, bands=spec.column_band, x0=x0)
+    held_err = _rel_error(np.einsum("inc,nc->ic", a_h, sol.x), pool.radiance[held], pool.weights[held]) if len(held) else None
+    info = {
+        "unknowns": n,
+        "bands": list(spec.bands),
+        "lmax": spec.lmax,
+        "pmax": spec.pmax if spec.kind == "full" else None,
+        "solver": solver,
+        "rank": sol.rank.tolist(),
+        "condition_number": sol.cond.tolist(),
+        "full_rank": bool(np.all(sol.rank == n)),
+        "tikhonov_lambda_rel": None if sol.lam is None else sol.lam.tolist(),
+        "rows_used": qr.rows,
+        "rows_available": int(len(train)),
+        "stopping_rule_converged": converged,
+        "train_relative_rms": math.sqrt(float(np.sum(sol.residual)) / max(float(np.sum(pool.weights[train][: qr.rows, None] * pool.radiance[train][: qr.rows] ** 2)), 1e-300)),
+        "heldout_relative_rms": held_err,
+        "seconds": time.perf_counter() - t0,
+    }
+    return sol.x, info
+
+
+def _microfacet(scenes, pool, held, progress):
+    try:
+        from fit.microfacet import fit_microfacet
+    except ImportError:
+        return None, {"available": False, "reason": "fit.microfacet is not installed"}
+    t0 = time.perf_counter()
+    brdf, rep = fit_microfacet(scenes, progress=progress)
+    pred = np.empty_like(pool.radiance[held])
+    for s in np.unique(pool.scene[held]):
+        rows = np.flatnonzero(pool.scene[held] == s)
+        pred[rows] = brdf.predict(scenes[s].env, pool.normals[held[rows]])
+    info = {
+        "available": True,
+        "heldout_relative_rms": _rel_error(pred, pool.radiance[held], pool.weights[held]) if len(held) else None,
+        "full_rank": not rep.get("alpha_at_bound", False),
+        "fit_report": rep,
+        "seconds": time.perf_counter() - t0,
+    }
+    return brdf, info
+
+
+def fit_brdf(
+    scenes: list[Scene],
+    model: str = "auto",
+    lmax: int = 8,
+    pmax: int = 8,
+    solver: str = "joint",
+    progress: bool = True,
+    *,
+    max_theta_deg: float = DEFAULT_MAX_THETA_DEG,
+    tol: float = STOP_TOL,
+    seed: int = 0,
+) -> FitResult:
+    """Fit a BRDF to one or more scenes.
+
+    Parameters
+    ----------
+    scenes : list of Scene
+        Each: lighting (``Environment``) and the sphere's pixels (normals, radiance, weights).
+    model : {"auto", "diffuse", "lobe", "microfacet", "full", "full+prior"}
+        ``full+prior`` is ``full`` solved by Tikhonov (GCV) toward the projection
+        of the best identifiable fit (``microfacet`` if available, else ``lobe``).
+        ``full`` alone is solved as asked even when undetermined (minimum norm;
+        the report says so); ``auto`` never picks an undetermined model.
+    lmax, pmax : int
+        Lighting and outgoing band limits.
+    solver : {"paper", "joint", "tikhonov"}
+        Solver of the linear models (``full+prior`` always uses ``tikhonov``).
+    progress : bool
+        tqdm bars on stderr.
+    max_theta_deg : float
+        Limb margin: pixels whose normal is further than this from the view are ignored.
+    tol : float
+        Stopping rule tolerance (relative change of the held-out prediction).
+    seed : int
+        Seed of the pixel order and the held-out draw.
+
+    Returns
+    -------
+    FitResult
+    """
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; expected one of {MODELS}")
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
+    if lmax < 0 or pmax < 0:
+        raise ValueError(f"band limits must be >= 0 (lmax={lmax}, pmax={pmax})")
+    t0 = time.perf_counter()
+    pool, counts = _gather(scenes, max_theta_deg)
+    coeffs = _lighting(scenes, lmax)
+    ident = analyse_lighting(coeffs, lmax, pmax, theta_max_deg=max_theta_deg)
+    bands = tuple(ident.observable_bands)
+    if not bands:
+        raise ValueError("the lighting has no energy in any band: nothing can be measured")
+
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(pool.weights))
+    n_held = min(int(HELDOUT_FRACTION * len(order)), HELDOUT_MAX)
+    held, train = np.sort(order[:n_held]), order[n_held:]
+
+    wanted = RICHNESS if model == "auto" else (model,)
+    candidates: dict[str, dict] = {}
+    fitted: dict[str, FittedBRDF] = {}
+    full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
+
+    def linear(kind, name, spec_lmax, x0_brdf=None, use_solver=solver):
+        spec = ModelSpec(kind, spec_lmax, pmax, bands=tuple(b for b in bands if b <= spec_lmax))
+        x0 = None if x0_brdf is None else project_to_full(x0_brdf, spec)
+        x, info = _fit_linear(spec, coeffs, pool, train, held, use_solver, x0, tol, progress, name)
+        fitted[name] = make_linear_brdf(spec, x)
+        candidates[name] = info
+
+    for name in wanted:
+        if name in ("diffuse", "lobe"):
+            linear(name, name, lmax)
+        elif name == "microfacet":
+            brdf, info = _microfacet(scenes, pool, held, progress)
+            candidates[name] = info
+            if brdf is not None:
+                fitted[name] = brdf
+        elif full_lmax < 0 or (model == "auto" and full_lmax < 1):
+            candidates[name] = {"skipped": f"the lighting separates no full-model band limit >= 1 (needs >= 2 differing scenes)"}
+        elif name == "full":
+            linear("full", name, full_lmax)
+        else:  # full+prior
+            prior = fitted.get("microfacet") or fitted.get("lobe")
+            prior_name = "microfacet" if "microfacet" in fitted else "lobe"
+            if prior is None:
+                if model != "auto":
+                    brdf, info = _microfacet(scenes, pool, held, progress)
+                    if brdf is None:
+                        linear("lobe", "lobe", lmax)
+                        brdf, prior_name = fitted["lobe"], "lobe"
+                    else:
+                        candidates["microfacet"], fitted["microfacet"], prior_name = info, brdf, "microfacet"
+                    prior = brdf
+            linear("full", name, full_lmax, x0_brdf=prior, use_solver="tikhonov")
+            candidates[name]["prior"] = prior_name
+
+    # Determinacy of each candidate: lighting (identifiability) and pixels (achieved rank).
+    for name, info in candidates.items():
+        if "skipped" in info or not info.get("available", True):
+            info["determined"] = False
+            continue
+        if name in ("diffuse", "lobe"):
+            det = ident.determined(name)
+        elif name == "full":
+            det = info["lmax"] <= ident.full_lmax_determined
+        elif name == "full+prior":
+            det = info["lmax"] <= ident.full_lmax_determined  # the prior only regularises
+        else:
+            det = True  # microfacet: a few parameters, identifiable from one image
+        info["determined"] = bool(det and info["full_rank"])
+
+    if model == "auto":
+        ok = [m for m in RICHNESS if m in fitted and candidates[m]["determined"] and candidates[m]["heldout_relative_rms"] is not None]
+        if ok:
+            best = min(candidates[m]["heldout_relative_rms"] for m in ok)
+            chosen = [m for m in ok if candidates[m]["heldout_relative_rms"] <= best * (1 + SELECT_RTOL) + 1e-12][-1]
+            reason = (
+                f"richest determined model with held-out error within {SELECT_RTOL:.0%} of the best "
+                f"({candidates[chosen]['heldout_relative_rms']:.4g} vs {best:.4g})"
+            )
+        else:
+            chosen = "diffuse"
+            reason = "no candidate reached full rank on these pixels; fell back to diffuse (minimum norm)"
+    else:
+        chosen = model
+        det = candidates[model].get("determined", False)
+        reason = "requested" + ("" if det else " (WARNING: not determined by these data; see identifiability)")
+    if chosen not in fitted:
+        raise ValueError(f"model {chosen!r} could not be fitted: {candidates[chosen]}")
+
+    report = {
+        "chosen_model": chosen,
+        "reason": reason,
+        "requested_model": model,
+        "solver": solver,
+        "lmax": lmax,
+        "pmax": pmax,
+        "n_scenes": len(scenes),
+        "pixels": counts,
+        "limb_margin_max_theta_deg": max_theta_deg,
+        "heldout_pixels": int(len(held)),
+        "stopping_rule": (
+            f"random pixel blocks of {BLOCK_ROWS}; stop when the held-out prediction changes by < {tol:g} "
+            "(relative) for two consecutive blocks"
+        ),
+        "unobservable_bands": ident.unobservable_bands,
+        "identifiability": ident.to_dict(),
+        "identifiability_summary": ident.summary(),
+        "candidates": candidates,
+        "seconds": time.perf_counter() - t0,
+    }
+    return FitResult(brdf=fitted[chosen], report=report)

@@ -1,0 +1,228 @@
+"""Least-squares solvers of the linear BRDF models, on a streamed QR factor.
+
+The weighted system ``sqrt(w) * A x = sqrt(w) * b`` (one per colour channel,
+``A`` of shape (m, n) with m up to millions of pixels) is never held in
+memory: :class:`StreamedQR` folds pixel blocks into the triangular factor of
+the augmented matrix ``[A | b]`` (``R`` (n, n), ``z = Q^T b`` and the norm of
+the residual outside the column space), i.e. a streamed Householder QR
+(LAPACK ``geqrf`` via numpy, batched over channels).  Every solver starts from
+that factor, so rotations and design rows are computed once for all solvers.
+
+Solvers (``../shared/docs/MATH.md`` pitfalls 4-5):
+
+``paper``     the seed's band-by-band normal equations (one block Gauss-Seidel
+              sweep over bands, each band solved against the residual of the
+              previous ones) -- the baseline.  Its Gram matrix is ``R^T R`` (= ``A^T A``).
+``joint``     all bands at once from the SVD of the column-equilibrated ``R``:
+              truncated (minimum-norm) where the numerical rank is below n.
+``tikhonov``  ``min |A x - b|^2 + lam^2 |D (x - x0)|^2`` with ``D`` the column norms
+              of ``A`` and ``lam`` minimising generalised cross-validation (GCV).
+
+All accept a prior ``x0``: they then solve for ``x - x0`` against ``b - A x0``,
+so directions the data do not determine stay at the prior.  Rank and
+condition number are returned with every solution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["RANK_RTOL", "SOLVERS", "StreamedQR", "Solution", "solve", "numerical_rank"]
+
+RANK_RTOL = 1e-9
+"""Singular values below ``RANK_RTOL * s_max`` of the column-equilibrated system count as zero."""
+
+SOLVERS = ("paper", "joint", "tikhonov")
+
+
+def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:
+    """Number of singular values above ``rtol`` times the largest (0 for an all-zero matrix)."""
+    s = np.asarray(singular_values)
+    if s.size == 0 or not np.isfinite(s[0]) or s[0] <= 0:
+        return 0
+    return int(np.count_nonzero(s > rtol * s[0]))
+
+
+class StreamedQR:
+    """Triangular factor of ``[sqrt(w) A | sqrt(w) b]`` accumulated over pixel blocks.
+
+    Parameters
+    ----------
+    n : int
+        Number of unknowns.
+    channels : int
+        Number of colour channels C (one independent system each).
+    """
+
+    def __init__(self, n: int, channels: int) -> None:
+        self.n = n
+        self.channels = channels
+        self._r = np.zeros((channels, n + 1, n + 1))
+        self.rows = 0
+
+    def add(self, design: np.ndarray, radiance: np.ndarray, weights: np.ndarray) -> None:
+        """Fold a block in: design (nb, n, C), radiance (nb, C), weights (nb,) >= 0."""
+        nb = design.shape[0]
+        if nb == 0:
+            return
+        sw = np.sqrt(np.asarray(weights, dtype=np.float64))
+        block = np.empty((self.channels, nb, self.n + 1))
+        block[:, :, : self.n] = np.moveaxis(design * sw[:, None, None], 2, 0)
+        block[:, :, self.n] = (radiance * sw[:, None]).T
+        stacked = np.concatenate([self._r, block], axis=1)
+        self._r = np.linalg.qr(stacked, mode="r")[:, : self.n + 1, :]
+        self.rows += int(np.count_nonzero(sw))
+
+    @property
+    def r(self) -> np.ndarray:
+        """(C, n, n) upper-triangular factor of ``sqrt(w) A``."""
+        return self._r[:, : self.n, : self.n]
+
+    @property
+    def z(self) -> np.ndarray:
+        """(C, n) ``Q^T sqrt(w) b``."""
+        return self._r[:, : self.n, self.n]
+
+    @property
+    def residual_outside(self) -> np.ndarray:
+        """(C,) squared norm of the part of ``sqrt(w) b`` outside the column space of ``A``."""
+        return self._r[:, self.n, self.n] ** 2
+
+
+@dataclass
+class Solution:
+    """Result of one solve.
+
+    Attributes
+    ----------
+    x : (n, C) float64
+        Unknowns per channel.
+    rank : (C,) int
+        Numerical rank used (column-equilibrated, :data:`RANK_RTOL`).
+    cond : (C,) float
+        2-norm condition number of the column-equilibrated system (inf if singular);
+        for ``paper`` that of the worst band's normal-equation matrix.
+    residual : (C,) float
+        Weighted residual sum of squares ``|sqrt(w)(A x - b)|^2``.
+    lam : (C,) float or None
+        Tikhonov parameter (relative to the largest singular value) chosen by GCV.
+    """
+
+    solver: str
+    x: np.ndarray
+    rank: np.ndarray
+    cond: np.ndarray
+    residual: np.ndarray
+    lam: np.ndarray | None = None
+
+
+def _equilibrate(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column norms ``d`` of ``r`` (zero columns get 1) and ``r / d``."""
+    d = np.linalg.norm(r, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    return r / d, d
+
+
+def _residual(r: np.ndarray, z: np.ndarray, outside: float, x: np.ndarray) -> float:
+    return float(np.sum((r @ x - z) ** 2) + outside)
+
+
+def _joint(r: np.ndarray, z: np.ndarray, rtol: float) -> tuple[np.ndarray, int, float]:
+    rs, d = _equilibrate(r)
+    u, s, vt = np.linalg.svd(rs)
+    k = numerical_rank(s, rtol)
+    y = vt[:k].T @ ((u[:, :k].T @ z) / s[:k]) if k else np.zeros(r.shape[1])
+    cond = s[0] / s[-1] if k == len(s) else np.inf
+    return y / d, k, float(cond)
+
+
+def _tikhonov(r: np.ndarray, z: np.ndarray, outside: float, rows: int, rtol: float) -> tuple[np.ndarray, int, float, float]:
+    rs, d = _equilibrate(r)
+    u, s, vt = np.linalg.svd(rs)
+    k = numerical_rank(s, rtol)
+    cond = s[0] / s[-1] if k == len(s) else np.inf
+    if k == 0:
+        return np.zeros(r.shape[1]), 0, float(cond), 0.0
+    beta = u.T @ z
+    s2 = s * s
+    grid = s[0] * np.logspace(-12, 0, 121)
+    best, best_lam = np.inf, grid[0]
+    for lam in grid:
+        f = s2 / (s2 + lam * lam)
+        res = outside + np.sum(((1.0 - f) * beta) ** 2)
+        dof = max(rows - np.sum(f), 1.0)
+        g = res / (dof * dof)
+        if g < best:
+            best, best_lam = g, lam
+    f = s / (s2 + best_lam * best_lam)
+    y = vt.T @ (f * beta)
+    return y / d, k, float(cond), float(best_lam / s[0])
+
+
+def _paper(r: np.ndarray, z: np.ndarray, bands: np.ndarray, rtol: float) -> tuple[np.ndarray, int, float]:
+    gram = r.T @ r
+    rhs = r.T @ z
+    x = np.zeros(r.shape[1])
+    done = np.zeros(r.shape[1], dtype=bool)
+    rank, cond = 0, 1.0
+    for l in np.unique(bands):
+        idx = np.flatnonzero(bands == l)
+        g = gram[np.ix_(idx, idx)]
+        b = rhs[idx] - gram[np.ix_(idx, np.flatnonzero(done))] @ x[done]
+        # The seed inverts A_l^T A_l; lstsq gives the same answer when it is
+        # invertible and a finite one when a band is singular (no NaN/inf).
+        x[idx] = np.linalg.lstsq(g, b, rcond=None)[0]
+        done[idx] = True
+        s = np.linalg.svd(g, compute_uv=False)
+        rank += numerical_rank(s, rtol * rtol)
+        cond = max(cond, s[0] / s[-1] if s[-1] > 0 else np.inf)
+    return x, rank, float(cond)
+
+
+def solve(
+    qr: StreamedQR,
+    solver: str = "joint",
+    *,
+    bands: np.ndarray | None = None,
+    x0: np.ndarray | None = None,
+    rtol: float = RANK_RTOL,
+) -> Solution:
+    """Solve every channel of a streamed system.
+
+    Parameters
+    ----------
+    qr : StreamedQR
+        The accumulated system.
+    solver : {"paper", "joint", "tikhonov"}
+    bands : (n,) int, optional
+        Lighting band of each unknown (``ModelSpec.column_band``); required by ``paper``.
+    x0 : (n, C) float64, optional
+        Prior; the solvers solve for ``x - x0``.
+    rtol : float
+        Relative singular-value threshold of the numerical rank.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
+    if solver == "paper" and bands is None:
+        raise ValueError("the 'paper' solver needs the band of every unknown")
+    n, nc = qr.n, qr.channels
+    x = np.zeros((n, nc))
+    rank = np.zeros(nc, dtype=np.int64)
+    cond = np.zeros(nc)
+    resid = np.zeros(nc)
+    lam = np.zeros(nc) if solver == "tikhonov" else None
+    for c in range(nc):
+        r, z, outside = qr.r[c], qr.z[c], qr.residual_outside[c]
+        prior = np.zeros(n) if x0 is None else x0[:, c]
+        zc = z - r @ prior
+        if solver == "joint":
+            dx, rank[c], cond[c] = _joint(r, zc, rtol)
+        elif solver == "tikhonov":
+            dx, rank[c], cond[c], lam[c] = _tikhonov(r, zc, outside, qr.rows, rtol)
+        else:
+            dx, rank[c], cond[c] = _paper(r, zc, np.asarray(bands), rtol)
+        x[:, c] = prior + dx
+        resid[c] = _residual(r, z, outside, x[:, c])
+    return Solution(solver=solver, x=x, rank=rank, cond=cond, residual=resid, lam=lam)

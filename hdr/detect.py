@@ -1,0 +1,200 @@
+"""Find the circle of a sphere (chrome probe or sample) in an HDR image to sub-pixel accuracy.
+
+Two stages:
+
+1. Coarse: OpenCV ``HoughCircles`` (``HOUGH_GRADIENT_ALT``) on a log-compressed,
+   8-bit, downscaled copy of the luminance.  Log compression makes a bright
+   ball on a dark background and a dark ball on a bright one look alike and
+   keeps clipped highlights from dominating.  Hough alone is good to 0.5-1 px.
+2. Refinement (hand-written, as OpenCV has no sub-pixel circle refinement):
+   along ``n_rays`` rays from the coarse centre the linear luminance profile
+   is sampled across the expected rim; each ray's edge is where the profile
+   crosses halfway between the levels just inside and just outside (the
+   50% area-coverage point of an anti-aliased edge), with rays of low
+   contrast (a stand under the ball, a background matching the rim) dropped.
+   A robust geometric circle fit (``scipy.optimize.least_squares`` with a
+   soft-L1 loss, plus explicit outlier rejection) of the edge points gives
+   the circle; the refinement is repeated around the new circle.
+
+Coordinates follow MATH.md: x = column, y = row (down), pixel (i, j) has its
+centre at (j + 0.5, i + 0.5).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["detect_sphere", "refine_circle", "SphereNotFoundError"]
+
+_HOUGH_MAX_DIM = 480  # coarse search image size (pixels)
+_HOUGH_MIN_RADIUS = 12  # smallest radius worth searching after downscaling (pixels)
+
+
+class SphereNotFoundError(ValueError):
+    """No sphere could be found in the image."""
+
+
+def _luminance(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim == 3:
+        image = image.mean(axis=2) if image.shape[2] != 1 else image[:, :, 0]
+    if image.ndim != 2:
+        raise ValueError(f"detect_sphere: expected an (H, W) or (H, W, C) image, got shape {image.shape}")
+    if not np.all(np.isfinite(image)):
+        raise ValueError("detect_sphere: the image contains NaN/inf pixels")
+    return image
+
+
+def _coarse_circles(lum: np.ndarray, min_radius: float, max_radius: float) -> np.ndarray:
+    """Hough candidates (cx, cy, r) in full-resolution pixel coordinates (pixel centres at +0.5), best first."""
+    import cv2
+
+    h, w = lum.shape
+    scale = min(1.0, max(_HOUGH_MAX_DIM / max(h, w), _HOUGH_MIN_RADIUS / max(min_radius, 1.0)))
+    positive = lum[lum > 0]
+    ref = float(np.median(positive)) if positive.size else 1.0
+    comp = np.log1p(np.maximum(lum, 0) / (0.05 * ref))
+    lo, hi = np.percentile(comp, [0.5, 99.5])
+    grey = np.clip((comp - lo) / max(hi - lo, 1e-12) * 255, 0, 255).astype(np.uint8)
+    if scale < 1:
+        grey = cv2.resize(grey, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+    grey = cv2.GaussianBlur(grey, (5, 5), 1.2)
+    sx, sy = grey.shape[1] / w, grey.shape[0] / h
+    circles = None
+    for perfectness in (0.9, 0.8, 0.65, 0.5):
+        circles = cv2.HoughCircles(grey, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=max(4.0, min_radius * scale),
+                                   param1=60, param2=perfectness,
+                                   minRadius=max(3, int(min_radius * scale * 0.9)),
+                                   maxRadius=int(np.ceil(max_radius * scale * 1.1)) + 1)
+        if circles is not None and len(circles[0]):
+            break
+    if circles is None or not len(circles[0]):
+        return np.zeros((0, 3))
+    c = circles[0][:, :3].astype(float)
+    # OpenCV's pixel centres are at integers: convert to MATH.md's (+0.5) and undo the downscale.
+    return np.stack([(c[:, 0] + 0.5) / sx, (c[:, 1] + 0.5) / sy, c[:, 2] / (0.5 * (sx + sy))], axis=1)
+
+
+def _edge_points(lum: np.ndarray, circle, n_rays: int, band: float):
+    """Sub-pixel edge points along rays across the rim of ``circle`` and their contrasts."""
+    from scipy.ndimage import map_coordinates
+
+    cx, cy, r = circle
+    phi = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
+    step = 0.25
+    s = np.arange(-band, band + step / 2, step)  # radial offsets from the rim
+    rad = r + s
+    xs = cx + np.cos(phi)[:, None] * rad[None, :]
+    ys = cy + np.sin(phi)[:, None] * rad[None, :]
+    # map_coordinates indexes pixel centres at integers.
+    prof = map_coordinates(lum, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
+    lo_k = int(round(2.5 / step))  # levels read 2.5 px either side of the crossing
+    pts, contrast = [], []
+    for i in range(n_rays):
+        p = prof[i]
+        grad = np.abs(np.diff(p))
+        k = int(np.argmax(grad[lo_k:len(grad) - lo_k])) + lo_k
+        inside, outside = p[max(k - lo_k, 0)], p[min(k + 1 + lo_k, len(p) - 1)]
+        half = 0.5 * (inside + outside)
+        # Nearest crossing of the half level around the steepest step.
+        sign = np.sign(p - half)
+        cross = np.nonzero(sign[:-1] != sign[1:])[0]
+        if not cross.size or inside == outside:
+            continue
+        j = cross[np.argmin(np.abs(cross - k))]
+        t = (half - p[j]) / (p[j + 1] - p[j]) if p[j + 1] != p[j] else 0.5
+        rr = rad[j] + t * step
+        pts.append((cx + np.cos(phi[i]) * rr, cy + np.sin(phi[i]) * rr))
+        contrast.append(abs(np.log(max(inside, 1e-12) / max(outside, 1e-12))) if min(inside, outside) > 0
+                        else abs(inside - outside) / max(abs(inside), abs(outside)))
+    return np.asarray(pts).reshape(-1, 2), np.asarray(contrast)
+
+
+def _fit_circle(pts: np.ndarray, start) -> np.ndarray:
+    """Robust geometric circle fit (soft-L1 loss) of (N, 2) points."""
+    from scipy.optimize import least_squares
+
+    def resid(q):
+        return np.hypot(pts[:, 0] - q[0], pts[:, 1] - q[1]) - q[2]
+
+    return least_squares(resid, np.asarray(start, float), loss="soft_l1", f_scale=0.3).x
+
+
+def refine_circle(image: np.ndarray, circle, *, n_rays: int | None = None, iterations: int = 3
+                  ) -> tuple[float, float, float]:
+    """Refine an approximate sphere circle (within ~2 px) to sub-pixel accuracy.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        Linear image (any units).
+    circle : (cx, cy, r)
+        Approximate circle, pixel coordinates (MATH.md).
+    n_rays : int, optional
+        Rays across the rim (default: about one per pixel of circumference,
+        between 180 and 2048).
+    iterations : int
+        Refinement passes.
+
+    Returns
+    -------
+    (cx, cy, r) : floats
+    """
+    lum = _luminance(image)
+    cx, cy, r = (float(v) for v in circle)
+    n_rays = n_rays or int(np.clip(2 * np.pi * r, 180, 2048))
+    band = max(4.0, 0.04 * r)
+    for _ in range(iterations):
+        pts, contrast = _edge_points(lum, (cx, cy, r), n_rays, band)
+        if len(pts) < 0.3 * n_rays:
+            raise SphereNotFoundError(f"no sphere rim found near circle ({cx:.1f}, {cy:.1f}, {r:.1f}): "
+                                      f"only {len(pts)} of {n_rays} rays cross an edge")
+        keep = contrast >= 0.25 * np.median(contrast)
+        pts = pts[keep]
+        q = _fit_circle(pts, (cx, cy, r))
+        for _ in range(2):  # drop outliers (stand, highlights) and refit
+            res = np.abs(np.hypot(pts[:, 0] - q[0], pts[:, 1] - q[1]) - q[2])
+            mad = 1.4826 * np.median(res) + 0.02
+            pts = pts[res < max(3 * mad, 0.3)]
+            q = _fit_circle(pts, q)
+        if len(pts) < 0.3 * n_rays:
+            raise SphereNotFoundError(f"no consistent sphere rim near circle ({cx:.1f}, {cy:.1f}, {r:.1f})")
+        cx, cy, r = (float(v) for v in q)
+        band = 3.0
+    return cx, cy, r
+
+
+def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None = None
+                  ) -> tuple[float, float, float]:
+    """Find the circle of the most prominent sphere in an image, to sub-pixel accuracy.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        Linear (HDR) image of a chrome probe or a sample sphere.
+    radius_range : (min_r, max_r), optional
+        Radius bounds in pixels (default: 20 to half the smaller image side).
+
+    Returns
+    -------
+    (cx, cy, r) : floats
+        Centre (x = column, y = row, MATH.md pixel coordinates) and radius, in pixels.
+
+    Raises
+    ------
+    SphereNotFoundError (a ValueError)
+        When no circle is found or its rim cannot be confirmed.
+    """
+    lum = _luminance(image)
+    h, w = lum.shape
+    min_r, max_r = radius_range if radius_range is not None else (20.0, min(h, w) / 2.0)
+    if min(h, w) < 16 or max_r < min_r:
+        raise SphereNotFoundError(f"image {w}x{h} too small for a sphere of radius {min_r}-{max_r} px")
+    candidates = _coarse_circles(lum, min_r, max_r)
+    errors = []
+    for cand in candidates[:3]:
+        try:
+            return refine_circle(lum, cand)
+        except SphereNotFoundError as exc:
+            errors.append(str(exc))
+    raise SphereNotFoundError("no sphere found in the image" + (f" ({errors[0]})" if errors else ""))

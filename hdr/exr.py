@@ -1,0 +1,242 @@
+"""OpenEXR and Radiance HDR image I/O.
+
+EXR files are written and read through the OpenEXR Python bindings
+(``OpenEXR.File``); Radiance ``.hdr`` and other formats are read through
+OpenImageIO.  No hand-written parsers.
+
+Layout of the EXR files brdfrig writes:
+
+- colour as channels ``R, G, B`` (3 channels) or ``Y`` (1 channel), float32
+  (or half with ``half=True``), linear radiance;
+- extra per-pixel images as channels ``<name>`` (2-D) or ``<name>.R``,
+  ``<name>.G``, ``<name>.B`` (3 channels), e.g. ``variance.R`` or ``mask``;
+- metadata as header attributes ``brdfrig:<key>`` holding JSON text (exposure
+  provenance, sphere circle, ...), plus ``brdfrig:tool_version``;
+- lat-long environment maps carry the standard ``envmap = LATLONG`` attribute.
+
+Every writer is atomic: the file is written to a temporary name in the same
+directory and renamed over the target, so a failure never leaves a partial or
+corrupt output.  Every reader raises ``ValueError`` naming the file for a
+missing channel, a truncated or corrupt file or (unless allowed) NaN/inf pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_exr", "read_exr", "read_image", "ATTRIBUTE_PREFIX"]
+
+ATTRIBUTE_PREFIX = "brdfrig:"
+_RGB = ("R", "G", "B")
+
+
+def _tool_version() -> str:
+    try:
+        return metadata.version("brdfrig")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _colour_names(channels: int, path: Path, what: str) -> tuple[str, ...]:
+    if channels == 3:
+        return _RGB
+    if channels == 1:
+        return ("Y",)
+    raise ValueError(f"{path}: {what} must have 1 or 3 colour channels, got {channels}")
+
+
+def _atomic_target(path: Path) -> str:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".exr", dir=path.parent)
+    os.close(fd)
+    return tmp
+
+
+def write_exr(
+    path: str | os.PathLike,
+    rgb: np.ndarray,
+    extra_channels: dict[str, np.ndarray] | None = None,
+    attributes: dict | None = None,
+    *,
+    half: bool = False,
+    latlong: bool = False,
+) -> Path:
+    """Write a linear image (plus extra per-pixel channels and metadata) to an EXR file, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file (conventionally ``.exr``).
+    rgb : (H, W, C) or (H, W) array, C in {1, 3}
+        Linear radiance; stored as ``R, G, B`` or ``Y``.
+    extra_channels : dict of name -> (H, W) or (H, W, C) array, optional
+        Extra images, e.g. ``{"variance": var (H,W,3), "mask": m (H,W)}``;
+        a 3-channel image is stored as ``name.R``, ``name.G``, ``name.B``.
+    attributes : dict, optional
+        JSON-serialisable metadata, stored as ``brdfrig:<key>`` string
+        attributes; ``tool_version`` is added automatically.
+    half : bool
+        Store every channel as 16-bit half floats instead of float32.
+    latlong : bool
+        Mark the file as a lat-long environment map (``envmap`` attribute,
+        OpenEXR ``LatLongMap`` convention, see MATH.md).
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    rgb = np.asarray(rgb)
+    if rgb.ndim == 2:
+        rgb = rgb[:, :, None]
+    if rgb.ndim != 3:
+        raise ValueError(f"{path}: image must be (H, W) or (H, W, C), got shape {rgb.shape}")
+    dtype = np.float16 if half else np.float32
+    channels: dict[str, np.ndarray] = {}
+    for name, plane in zip(_colour_names(rgb.shape[2], path, "image"), np.moveaxis(rgb, 2, 0)):
+        channels[name] = np.ascontiguousarray(plane, dtype=dtype)
+    for key, image in (extra_channels or {}).items():
+        image = np.asarray(image)
+        if image.shape[:2] != rgb.shape[:2] or image.ndim not in (2, 3):
+            raise ValueError(f"{path}: extra channel {key!r} has shape {image.shape}, image is {rgb.shape[:2]}")
+        if image.ndim == 2:
+            channels[key] = np.ascontiguousarray(image, dtype=dtype)
+        else:
+            for name, plane in zip(_colour_names(image.shape[2], path, f"extra channel {key!r}"),
+                                   np.moveaxis(image, 2, 0)):
+                channels[f"{key}.{name}"] = np.ascontiguousarray(plane, dtype=dtype)
+    header: dict = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    attrs = {"tool_version": _tool_version(), **(attributes or {})}
+    for key, value in attrs.items():
+        try:
+            header[ATTRIBUTE_PREFIX + key] = json.dumps(value)
+        except TypeError as exc:
+            raise ValueError(f"{path}: attribute {key!r} is not JSON-serialisable: {exc}") from None
+    if latlong:
+        header["envmap"] = OpenEXR.ENVMAP_LATLONG
+
+    tmp = _atomic_target(path)
+    try:
+        with OpenEXR.File(header, channels) as exr:
+            exr.write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _check_finite(image: np.ndarray, path: Path, what: str) -> None:
+    bad = ~np.isfinite(image)
+    if bad.any():
+        idx = np.argwhere(bad)[0]
+        raise ValueError(f"{path}: {int(bad.sum())} NaN/inf values in {what} (first at row {idx[0]}, col {idx[1]})")
+
+
+def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
+             ) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
+    """Read an EXR written by :func:`write_exr` (or any EXR with R,G,B or Y channels).
+
+    Parameters
+    ----------
+    path : path-like
+        The EXR file.
+    allow_nonfinite : bool
+        Accept NaN/inf in the colour channels (default: ``ValueError``).
+
+    Returns
+    -------
+    rgb : (H, W, C) float32
+        Colour channels (C = 3 for R,G,B, 1 for Y).
+    extra : dict of name -> (H, W) or (H, W, C) float32
+        The other channels, grouped back by ``name.R/G/B``.
+    attributes : dict
+        The ``brdfrig:`` attributes (JSON-decoded, prefix removed); other
+        header attributes of plain types (str, int, float) under their own names.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such EXR file")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            header = dict(exr.header())
+            planes = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+    except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for corrupt data
+        raise ValueError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
+    if all(c in planes for c in _RGB):
+        rgb = np.stack([planes.pop(c) for c in _RGB], axis=-1)
+    elif "Y" in planes:
+        rgb = planes.pop("Y")[:, :, None]
+    else:
+        raise ValueError(f"{path}: no R,G,B or Y channels (has {sorted(planes)})")
+    if not allow_nonfinite:
+        _check_finite(rgb, path, "the colour channels")
+    extra: dict[str, np.ndarray] = {}
+    groups = sorted({name.rsplit(".", 1)[0] for name in planes if "." in name})
+    for group in groups:
+        for names in (_RGB, ("Y",)):
+            keys = [f"{group}.{c}" for c in names]
+            if all(k in planes for k in keys):
+                extra[group] = np.stack([planes.pop(k) for k in keys], axis=-1)
+                break
+    extra.update(planes)
+    attributes: dict = {}
+    for key, value in header.items():
+        if key.startswith(ATTRIBUTE_PREFIX):
+            try:
+                attributes[key[len(ATTRIBUTE_PREFIX):]] = json.loads(value)
+            except (TypeError, json.JSONDecodeError):
+                attributes[key[len(ATTRIBUTE_PREFIX):]] = value
+        elif isinstance(value, (str, int, float)):
+            attributes[key] = value
+    return rgb, extra, attributes
+
+
+def read_image(path: str | os.PathLike, *, allow_nonfinite: bool = False) -> np.ndarray:
+    """Read a linear HDR image: EXR through OpenEXR, Radiance ``.hdr`` (and others) through OpenImageIO.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.exr``, ``.hdr``/``.pic`` or any float format OpenImageIO reads.
+    allow_nonfinite : bool
+        Accept NaN/inf pixels (default: ``ValueError``).
+
+    Returns
+    -------
+    (H, W, C) float32
+        Linear colour, C = 3 (RGB; alpha and extra channels dropped) or 1.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such image file")
+    if path.suffix.lower() == ".exr":
+        return read_exr(path, allow_nonfinite=allow_nonfinite)[0]
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"{path}: not a readable image: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        error = inp.geterror() if inp.has_error else ""
+    finally:
+        inp.close()
+    if pixels is None or error:
+        raise ValueError(f"{path}: truncated or corrupt image: {error or 'no pixels read'}")
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    image = pixels[:, :, :3] if spec.nchannels >= 3 else pixels[:, :, :1]
+    if not allow_nonfinite:
+        _check_finite(image, path, "the image")
+    return np.ascontiguousarray(image)

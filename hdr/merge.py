@@ -1,0 +1,425 @@
+"""Merge an exposure bracket of linear frames into radiance plus a per-pixel variance.
+
+Model (MATH.md pitfall 7).  Frame ``k`` records, per pixel and channel,
+``z_k = X t_k + noise`` in frame units (1.0 = ``saturation``), with
+``Var(z_k) = z/full_well + (read_noise/full_well)^2`` (shot + read noise, both
+expressed in units of the full-well capacity).  Each frame gives the estimate
+``X_k = z_k / t_k`` of the radiance ``X`` (frame units per second); the merge
+is the weighted mean ``X = sum w_k X_k / sum w_k``:
+
+- ``weighting="optimal"`` (default, Granados et al. 2010, "Optimal HDR
+  reconstruction with linear digital cameras"): ``w_k = t_k^2 / Var(z_k)``
+  with the variance evaluated at the current estimate ``X t_k`` (not at the
+  noisy ``z_k``, which would favour samples with negative noise), iterated;
+  the variance of the result is ``1 / sum w_k``.
+- ``weighting="debevec"`` (baseline, Debevec & Malik 1997): the hat
+  ``w(z) = min(z - lo, hi - z)``; variance ``sum w_k^2 Var(X_k) / (sum w_k)^2``.
+
+Samples at or above ``hi`` (saturated, default 0.95 of full scale: bilinear
+demosaicing spreads clipped values into neighbours) or at or below ``lo``
+(black, default 0: clipped at the black level, i.e. censored) get zero
+weight, per channel.  Near-black samples above ``lo`` get vanishing weight
+smoothly: the hat goes to 0 at ``lo``, and the optimal weight of a frame
+whose signal is buried in read noise is ``t^2 / read_var``, negligible beside
+a longer exposure's.  (A higher ``lo`` drops the negative-noise half of the
+faintest samples and biases them up: 2e-4 gave +16% instead of +10% at 11
+electrons in the tests' sensor model.)  A pixel with no
+usable sample falls back to the longest unsaturated frame (dark pixel,
+flag ``FLAG_DARK``) or, when it is saturated in every frame, to the shortest
+frame's value, a lower bound (``FLAG_SATURATED``, variance = value^2, and a
+:class:`SaturationWarning`).
+
+Exposure times: nominal times are rounded by cameras (1/125 s is not
+1/128 s), so the ratio between consecutive exposures is re-estimated from
+pixels well exposed in both (ratio of sums) and, when it differs from the
+nominal ratio by more than ``ratio_tolerance``, the re-estimated times are
+used, anchored so that the median frame keeps its nominal time (one wrong
+nominal time does not shift the others).
+
+The per-pixel loop is one fused numba kernel (frames read in their own
+dtype, no stacked copy), parallel over pixels.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from dataclasses import dataclass
+from typing import Sequence
+
+import numba as nb
+import numpy as np
+
+__all__ = [
+    "MergeResult",
+    "SaturationWarning",
+    "merge_bracket",
+    "estimate_times",
+    "align_frames",
+    "FLAG_DARK",
+    "FLAG_SATURATED",
+    "DEFAULT_FULL_WELL",
+    "DEFAULT_READ_NOISE",
+]
+
+log = logging.getLogger(__name__)
+
+FLAG_DARK = 1
+FLAG_SATURATED = 2
+#: Default sensor noise model, in electrons (a typical APS-C/full-frame sensor at base ISO).
+DEFAULT_FULL_WELL = 20000.0
+DEFAULT_READ_NOISE = 5.0
+#: Well-exposed window (fraction of full scale) used to re-estimate exposure ratios.
+_RATIO_WINDOW = (0.05, 0.8)
+_RATIO_MIN_SAMPLES = 200
+_RATIO_MAX_SAMPLES = 2_000_000
+
+
+class SaturationWarning(UserWarning):
+    """Some pixels are saturated in every frame of a bracket: their radiance is only a lower bound."""
+
+
+@dataclass(frozen=True)
+class MergeResult:
+    """Merged HDR image.
+
+    Attributes
+    ----------
+    radiance : (H, W, C) float32
+        Linear radiance in frame units per second of exposure (``z / t``).
+    variance : (H, W, C) float32
+        Variance of ``radiance`` under the noise model (same units squared).
+    flags : (H, W, C) uint8
+        0 = merged from usable samples, ``FLAG_DARK`` = below the black
+        threshold in every frame, ``FLAG_SATURATED`` = saturated in every frame.
+    times : (K,) float64
+        Exposure times used (re-estimated or nominal), in input order.
+    nominal_times : (K,) float64
+        Exposure times given.
+    shifts : (K, 2) int or None
+        (dx, dy) shift applied to each frame by alignment, or None.
+    weighting : str
+        ``"optimal"`` or ``"debevec"``.
+    """
+
+    radiance: np.ndarray
+    variance: np.ndarray
+    flags: np.ndarray
+    times: np.ndarray
+    nominal_times: np.ndarray
+    shifts: np.ndarray | None
+    weighting: str
+
+    @property
+    def saturated_fraction(self) -> float:
+        """Fraction of pixel-channels saturated in every frame."""
+        return float(np.mean(self.flags == FLAG_SATURATED))
+
+
+@nb.njit(parallel=True, cache=True)  # no fastmath: NaN (no data after alignment) must compare false
+def _merge_kernel(frames, times, inv_sat, lo, hi, optimal, inv_well, read_var, iterations,
+                  out_rad, out_var, out_flag):  # pragma: no cover - compiled
+    npix, nch = out_rad.shape
+    nfr = len(frames)
+    mid = 0.5 * (lo + hi)
+    for p in nb.prange(npix):
+        for c in range(nch):
+            # Debevec hat estimate (the result for "debevec", the starting point for "optimal").
+            num = 0.0
+            den = 0.0
+            for k in range(nfr):
+                z = frames[k][p, c] * inv_sat
+                if z > lo and z < hi:
+                    w = z - lo if z <= mid else hi - z
+                    num += w * z / times[k]
+                    den += w
+            if den <= 0.0:
+                # No usable sample: longest unsaturated frame (dark), else shortest (saturated).
+                best = -1
+                for k in range(nfr):
+                    z = frames[k][p, c] * inv_sat
+                    if z == z and z < hi and (best < 0 or times[k] > times[best]):
+                        best = k
+                if best >= 0:
+                    x = max(frames[best][p, c] * inv_sat, 0.0) / times[best]
+                    out_rad[p, c] = x
+                    out_var[p, c] = (x * times[best] * inv_well + read_var) / (times[best] * times[best])
+                    out_flag[p, c] = 1
+                else:
+                    for k in range(nfr):
+                        if best < 0 or times[k] < times[best]:
+                            best = k
+                    x = frames[best][p, c] * inv_sat / times[best]
+                    out_rad[p, c] = x
+                    out_var[p, c] = x * x
+                    out_flag[p, c] = 2
+                continue
+            x = num / den
+            if optimal:
+                for _ in range(iterations):
+                    num = 0.0
+                    den = 0.0
+                    xs = max(x, 0.0)
+                    for k in range(nfr):
+                        z = frames[k][p, c] * inv_sat
+                        if z > lo and z < hi:
+                            t = times[k]
+                            w = t * t / (xs * t * inv_well + read_var)
+                            num += w * z / t
+                            den += w
+                    x = num / den
+                var = 1.0 / den
+            else:
+                xs = max(x, 0.0)
+                acc = 0.0
+                for k in range(nfr):
+                    z = frames[k][p, c] * inv_sat
+                    if z > lo and z < hi:
+                        t = times[k]
+                        w = z - lo if z <= mid else hi - z
+                        acc += w * w * (xs * t * inv_well + read_var) / (t * t)
+                var = acc / (den * den)
+            out_rad[p, c] = x
+            out_var[p, c] = var
+            out_flag[p, c] = 0
+
+
+def _validate(frames, times, names) -> tuple[list[np.ndarray], np.ndarray, list[str]]:
+    if len(frames) == 0:
+        raise ValueError("merge: the bracket has no frames")
+    names = list(names) if names is not None else [f"frame {k}" for k in range(len(frames))]
+    if len(names) != len(frames):
+        raise ValueError(f"merge: {len(names)} names for {len(frames)} frames")
+    if times is None:
+        raise ValueError("merge: exposure times are missing")
+    times = np.asarray(times, dtype=float).ravel()
+    if times.size != len(frames):
+        raise ValueError(f"merge: {times.size} exposure times for {len(frames)} frames")
+    for name, t in zip(names, times):
+        if not (np.isfinite(t) and t > 0):
+            raise ValueError(f"merge: {name}: exposure time must be a positive number, got {t}")
+    arrays = []
+    for name, f in zip(names, frames):
+        f = np.asarray(f)
+        if f.ndim == 2:
+            f = f[:, :, None]
+        if f.ndim != 3:
+            raise ValueError(f"merge: {name}: expected an (H, W, C) image, got shape {f.shape}")
+        if arrays and f.shape != arrays[0].shape:
+            raise ValueError(f"merge: {name} has size {f.shape}, {names[0]} has {arrays[0].shape}: "
+                             "a bracket must have one image size")
+        if not (np.issubdtype(f.dtype, np.integer) or np.issubdtype(f.dtype, np.floating)):
+            raise ValueError(f"merge: {name}: unsupported pixel type {f.dtype}")
+        if np.issubdtype(f.dtype, np.floating) and not np.all(np.isfinite(f)):
+            raise ValueError(f"merge: {name}: contains NaN/inf pixel values")
+        arrays.append(f)
+    return arrays, times, names
+
+
+def estimate_times(
+    frames: Sequence[np.ndarray],
+    times: Sequence[float],
+    *,
+    saturation: float = 1.0,
+    window: tuple[float, float] = _RATIO_WINDOW,
+    min_samples: int = _RATIO_MIN_SAMPLES,
+) -> np.ndarray:
+    """Re-estimate exposure times from the overlap of well-exposed pixels.
+
+    For consecutive frames in order of nominal time, the exposure ratio is
+    the ratio of the sums of the pixel-channel values that lie within
+    ``window`` (fractions of ``saturation``) in both frames; a pair with
+    fewer than ``min_samples`` such values keeps its nominal ratio.  The
+    chained times are anchored so that the median of ``t_est / t_nominal``
+    is 1.
+
+    Parameters
+    ----------
+    frames : sequence of K (H, W, C) arrays
+        Linear frames (same shape).
+    times : (K,) float
+        Nominal exposure times in seconds.
+    saturation : float
+        Frame value of full scale.
+    window : (lo, hi)
+        Well-exposed range as fractions of ``saturation``.
+    min_samples : int
+        Minimum overlap size for a ratio to be trusted.
+
+    Returns
+    -------
+    (K,) float64
+        Re-estimated exposure times, in input order.
+    """
+    times = np.asarray(times, dtype=float)
+    order = np.argsort(times)
+    npix = frames[0].size
+    step = max(1, int(np.ceil(npix / _RATIO_MAX_SAMPLES)))
+    lo, hi = window[0] * saturation, window[1] * saturation
+    log_t = np.zeros(len(times))
+    for i in range(1, len(order)):
+        a = np.asarray(frames[order[i - 1]]).reshape(-1)[::step].astype(np.float64)
+        b = np.asarray(frames[order[i]]).reshape(-1)[::step].astype(np.float64)
+        ok = (a > lo) & (a < hi) & (b > lo) & (b < hi)
+        nominal = np.log(times[order[i]] / times[order[i - 1]])
+        if np.count_nonzero(ok) >= min_samples:
+            log_t[i] = log_t[i - 1] + np.log(b[ok].sum() / a[ok].sum())
+        else:
+            log_t[i] = log_t[i - 1] + nominal
+    est = np.empty(len(times))
+    est[order] = np.exp(log_t)
+    return est * np.exp(np.median(np.log(times / est)))
+
+
+def align_frames(frames: Sequence[np.ndarray], times: Sequence[float], *, saturation: float = 1.0,
+                 max_bits: int | None = None) -> tuple[list[np.ndarray], np.ndarray]:
+    """Align frames by translation with OpenCV's median threshold bitmaps (Ward 2003).
+
+    Each frame is shifted onto the frame of median exposure time; pixels
+    shifted in from outside the frame become NaN (no data for the merge).
+
+    Parameters
+    ----------
+    frames : sequence of K (H, W, C) arrays
+        Linear frames.
+    times : (K,) float
+        Exposure times (only used to pick the reference frame).
+    saturation : float
+        Frame value of full scale.
+    max_bits : int, optional
+        log2 of the largest shift searched (default: 6, i.e. up to 64 px,
+        reduced for small images so the coarsest pyramid level keeps >= 24 px).
+
+    Returns
+    -------
+    aligned : list of K (H, W, C) float32
+    shifts : (K, 2) int
+        (dx, dy) applied to each frame.
+    """
+    import cv2
+
+    ref = int(np.argsort(times)[len(times) // 2])
+    if max_bits is None:
+        max_bits = int(np.clip(np.log2(min(np.shape(frames[0])[:2]) / 24), 1, 6))
+    mtb = cv2.createAlignMTB(max_bits=max_bits)
+
+    def grey8(f):
+        g = np.asarray(f, dtype=np.float32).mean(axis=2) / saturation
+        return (np.clip(g, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
+
+    ref8 = grey8(frames[ref])
+    aligned, shifts = [], []
+    for k, f in enumerate(frames):
+        f = np.asarray(f, dtype=np.float32)
+        dx, dy = (0, 0) if k == ref else (int(v) for v in mtb.calculateShift(ref8, grey8(f)))
+        out = np.full_like(f, np.nan)
+        h, w = f.shape[:2]
+        ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
+        xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
+        out[yd, xd] = f[ys, xs]
+        aligned.append(out)
+        shifts.append((dx, dy))
+    return aligned, np.asarray(shifts, dtype=int)
+
+
+def merge_bracket(
+    frames: Sequence[np.ndarray],
+    times: Sequence[float],
+    *,
+    weighting: str = "optimal",
+    saturation: float | None = None,
+    clip_threshold: float = 0.95,
+    black_threshold: float = 0.0,
+    full_well: float = DEFAULT_FULL_WELL,
+    read_noise: float = DEFAULT_READ_NOISE,
+    reestimate_times: bool = True,
+    ratio_tolerance: float = 0.005,
+    align: bool = False,
+    iterations: int = 2,
+    names: Sequence[str] | None = None,
+) -> MergeResult:
+    """Merge a bracket of linear frames into radiance and variance.
+
+    Parameters
+    ----------
+    frames : sequence of K (H, W, C) or (H, W) arrays
+        Linear frames of one scene (float or integer), all the same shape.
+    times : (K,) float
+        Nominal exposure times in seconds (any order).
+    weighting : {"optimal", "debevec"}
+        Noise-optimal ``t^2 / variance`` weights (default) or Debevec's hat.
+    saturation : float, optional
+        Frame value of full scale: 1.0 for float frames, the dtype's maximum
+        for integer frames by default.
+    clip_threshold, black_threshold : float
+        Samples ``>= clip_threshold`` or ``<= black_threshold`` (fractions of
+        ``saturation``) get zero weight, per channel.
+    full_well, read_noise : float
+        Noise model in electrons: full-scale signal and read-noise sigma.
+    reestimate_times : bool
+        Re-estimate exposure ratios from well-exposed overlap
+        (:func:`estimate_times`) and use them when they differ from the
+        nominal ratios by more than ``ratio_tolerance`` (relative).
+    align : bool
+        Translate frames onto the median-exposure frame first (:func:`align_frames`).
+    iterations : int
+        Re-weighting iterations of the optimal merge.
+    names : sequence of str, optional
+        Frame names (file names) used in error messages.
+
+    Returns
+    -------
+    MergeResult
+    """
+    arrays, nominal, names = _validate(frames, times, names)
+    if weighting not in ("optimal", "debevec"):
+        raise ValueError(f"merge: weighting must be 'optimal' or 'debevec', got {weighting!r}")
+    if not 0 <= black_threshold < clip_threshold <= 1:
+        raise ValueError(f"merge: need 0 <= black_threshold < clip_threshold <= 1, got "
+                         f"{black_threshold}, {clip_threshold}")
+    if saturation is None:
+        dt = arrays[0].dtype
+        saturation = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else 1.0
+    if not saturation > 0:
+        raise ValueError(f"merge: saturation must be positive, got {saturation}")
+
+    shifts = None
+    if align and len(arrays) > 1:
+        arrays, shifts = align_frames(arrays, nominal, saturation=saturation)
+    used = nominal.copy()
+    if reestimate_times and len(arrays) > 1:
+        est = estimate_times(arrays, nominal, saturation=saturation)
+        ratio_err = np.abs(est / nominal / np.median(est / nominal) - 1)
+        if np.any(ratio_err > ratio_tolerance):
+            log.info("merge: exposure times re-estimated from overlap: %s -> %s", nominal.tolist(), est.tolist())
+            used = est
+
+    h, w, c = arrays[0].shape
+    dtypes = {a.dtype for a in arrays}
+    if len(dtypes) > 1:
+        arrays = [a.astype(np.float32) for a in arrays]
+    flat = tuple(np.ascontiguousarray(a).reshape(h * w, c) for a in arrays)
+    rad = np.empty((h * w, c), np.float32)
+    var = np.empty((h * w, c), np.float32)
+    flags = np.empty((h * w, c), np.uint8)
+    _merge_kernel(flat, used, 1.0 / saturation, black_threshold, clip_threshold, weighting == "optimal",
+                  1.0 / full_well, (read_noise / full_well) ** 2, int(iterations), rad, var, flags)
+    result = MergeResult(
+        radiance=rad.reshape(h, w, c),
+        variance=var.reshape(h, w, c),
+        flags=flags.reshape(h, w, c),
+        times=used,
+        nominal_times=nominal,
+        shifts=shifts,
+        weighting=weighting,
+    )
+    nsat = int(np.count_nonzero(result.flags == FLAG_SATURATED))
+    if nsat:
+        warnings.warn(
+            f"merge: {nsat} pixel-channels ({100 * nsat / result.flags.size:.3g}%) are saturated in every "
+            f"frame, shortest exposure {used.min():.6g} s: their radiance is only a lower bound "
+            "(add a shorter exposure)",
+            SaturationWarning,
+            stacklevel=2,
+        )
+    return result

@@ -1,0 +1,496 @@
+"""Turntable interface and its GRBL 1.1 driver.
+
+The driver speaks the dialect documented in :mod:`rig.grbl_protocol` over a
+:class:`rig.serial_link.SerialLink`.  Its contract:
+
+* a position is reported (returned, or exposed by :attr:`position_deg`) only
+  after two consecutive status reports say ``Idle`` at that position: while
+  moving, after an error, or before homing, :attr:`position_deg` is ``None``;
+* every exchange has an overall deadline; lost replies and garbage on the line
+  trigger a resynchronisation (drain until quiet, fresh status report) and a
+  bounded number of re-sends, which is safe because every command it sends is
+  idempotent (absolute moves, homing, unlock, settings writes);
+* backlash is compensated by approaching every target from the same (+) side:
+  a move that would end going - first goes ``backlash_deg`` (plus a margin)
+  below the target;
+* any failure during a move (timeout, stall, alarm, disconnect, Ctrl-C) stops
+  the table (feed hold ``!``, then soft reset ``0x18``, which keeps the
+  position when the hold completed) before the typed error propagates.
+
+Assumption about the machine: GRBL homing finishes with the table driven in
+the + direction (the pull-off of a switch sought in the - direction, ``$23``),
+so the gear play is taken up on the + side right after homing.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Protocol, runtime_checkable
+
+from rig import grbl_protocol as gp
+from rig.errors import DeviceDisconnected, DeviceNotFound, DeviceRefused, DeviceTimeout, RigError
+from rig.serial_link import SerialLink
+
+__all__ = ["Turntable", "GrblTurntable"]
+
+# Parse-class error codes: on a command we know to be valid they mean line noise, so re-sending is right.
+_RETRYABLE_ERRORS = frozenset({1, 2, 3, 11, 20})
+
+
+@runtime_checkable
+class Turntable(Protocol):
+    """A rotation stage with an absolute, confirmed angle in degrees.
+
+    ``position_deg`` is the last position confirmed by the device, or ``None``
+    when it is unknown (not homed, moving, after an error).
+    """
+
+    @property
+    def position_deg(self) -> float | None: ...
+
+    def connect(self) -> None: ...
+
+    def home(self) -> float: ...
+
+    def move_to(self, angle_deg: float) -> float: ...
+
+    def stop(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Turntable: ...
+
+    def __exit__(self, *exc) -> None: ...
+
+
+def _positive(name: str, value: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+class GrblTurntable:
+    """A turntable driven by a GRBL 1.1 controller whose X axis is the table angle in degrees.
+
+    Parameters
+    ----------
+    port : str
+        Serial device path.
+    baud : int
+        Baud rate (GRBL 1.1 default 115200).
+    steps_per_degree : float
+        Motor (micro)steps per table degree, > 0; written to the controller's
+        ``$100`` on connect if it differs.
+    backlash_deg : float
+        Gear play in degrees, >= 0; 0 disables the same-side approach.
+    reply_timeout_s : float
+        Deadline for one command's ``ok`` or one status report.
+    connect_timeout_s : float
+        Deadline for the greeting after a soft reset.
+    homing_timeout_s : float
+        Deadline for the ``ok`` of a homing cycle.
+    move_margin_s : float
+        Added to twice the move's nominal duration (distance / ``$110``) to give its deadline.
+    stall_timeout_s : float
+        A move whose reported position does not change for this long has stalled.
+    poll_interval_s : float
+        Pause between status reports while waiting for a move.
+    retries : int
+        Re-sends per command (and per move) before giving up, >= 0.
+    reconnect_attempts : int
+        Port-open attempts in :meth:`connect` (a USB device may take a moment to reappear).
+    reconnect_delay_s : float
+        Pause between those attempts.
+    resync_quiet_s : float
+        Quiet time that ends a resynchronisation drain.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        baud: int = 115200,
+        steps_per_degree: float = 80.0,
+        backlash_deg: float = 0.0,
+        *,
+        reply_timeout_s: float = 1.0,
+        connect_timeout_s: float = 3.0,
+        homing_timeout_s: float = 60.0,
+        move_margin_s: float = 2.0,
+        stall_timeout_s: float = 2.0,
+        poll_interval_s: float = 0.05,
+        retries: int = 3,
+        reconnect_attempts: int = 3,
+        reconnect_delay_s: float = 0.5,
+        resync_quiet_s: float = 0.05,
+    ) -> None:
+        self.steps_per_degree = _positive("steps_per_degree", steps_per_degree)
+        if isinstance(backlash_deg, bool) or not isinstance(backlash_deg, (int, float)) or not (
+            math.isfinite(backlash_deg) and backlash_deg >= 0
+        ):
+            raise ValueError(f"backlash_deg must be a finite number >= 0, got {backlash_deg!r}")
+        self.backlash_deg = float(backlash_deg)
+        self.reply_timeout_s = _positive("reply_timeout_s", reply_timeout_s)
+        self.connect_timeout_s = _positive("connect_timeout_s", connect_timeout_s)
+        self.homing_timeout_s = _positive("homing_timeout_s", homing_timeout_s)
+        self.move_margin_s = _positive("move_margin_s", move_margin_s)
+        self.stall_timeout_s = _positive("stall_timeout_s", stall_timeout_s)
+        self.reconnect_delay_s = _positive("reconnect_delay_s", reconnect_delay_s)
+        self.resync_quiet_s = _positive("resync_quiet_s", resync_quiet_s)
+        if not (isinstance(poll_interval_s, (int, float)) and 0 <= poll_interval_s < math.inf):
+            raise ValueError(f"poll_interval_s must be a finite number >= 0, got {poll_interval_s!r}")
+        self.poll_interval_s = float(poll_interval_s)
+        for name, value in (("retries", retries), ("reconnect_attempts", reconnect_attempts)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < (0 if name == "retries" else 1):
+                raise ValueError(f"{name} must be an integer >= {0 if name == 'retries' else 1}, got {value!r}")
+        self.retries = retries
+        self.reconnect_attempts = reconnect_attempts
+        self.link = SerialLink(port, baud)
+        self.firmware = ""
+        self.rate_deg_s = 1.0
+        self._lock = threading.RLock()
+        self._homed = False
+        self._position: float | None = None
+        self._loaded_positive = False
+        self._last_alarm: int | None = None
+
+    # -- state ----------------------------------------------------------------------------------
+    @property
+    def position_deg(self) -> float | None:
+        """Last confirmed angle in degrees, or ``None`` when unknown."""
+        return self._position
+
+    @property
+    def homed(self) -> bool:
+        return self._homed
+
+    @property
+    def _tolerance(self) -> float:
+        # half a step, but never below the 3-decimal resolution of GRBL's MPos
+        return max(0.5 / self.steps_per_degree, 0.0005) + 1e-9
+
+    def _quantise(self, angle_deg: float) -> float:
+        return round(angle_deg * self.steps_per_degree) / self.steps_per_degree
+
+    def _forget(self) -> None:
+        self._homed = False
+        self._position = None
+        self._loaded_positive = False
+
+    # -- lifetime -------------------------------------------------------------------------------
+    def connect(self) -> None:
+        """Open the port, reset the controller, check it is GRBL 1.1, read (and fix) its settings.
+
+        Raises
+        ------
+        DeviceNotFound
+            Port missing, or no GRBL 1.1 greeting (wrong baud rate, another device).
+        DeviceTimeout
+            Silence on the port.
+        """
+        with self._lock:
+            self._forget()
+            for attempt in range(self.reconnect_attempts):
+                try:
+                    self.link.open()
+                    break
+                except DeviceNotFound:
+                    if attempt + 1 == self.reconnect_attempts:
+                        raise
+                    time.sleep(self.reconnect_delay_s)
+            try:
+                self._soft_reset()
+                self._configure()
+            except BaseException:
+                self.link.close()
+                raise
+
+    def close(self) -> None:
+        """Close the port (the controller keeps its state); never raises."""
+        with self._lock:
+            self.link.close()
+            self._position = None
+
+    def __enter__(self) -> GrblTurntable:
+        self.connect()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self._halt_quietly()
+        self.close()
+
+    # -- public actions -------------------------------------------------------------------------
+    def home(self) -> float:
+        """Run the homing cycle (reconnecting first if the link was lost); return the confirmed angle 0.0."""
+        with self._lock:
+            if not self.link.is_open:
+                self.connect()
+            try:
+                if self._status().state == "Alarm":
+                    self._soft_reset()  # a hard alarm ignores everything until reset
+                self._forget()
+                self._command("$H", timeout=self.homing_timeout_s)
+                if not self._confirm_idle_at(0.0, time.monotonic() + self.reply_timeout_s * (self.retries + 1)):
+                    raise DeviceRefused("the controller did not report Idle at 0 after homing")
+            except BaseException:
+                self._halt_quietly()
+                raise
+            self._homed = True
+            self._position = 0.0
+            self._loaded_positive = True
+            return 0.0
+
+    def move_to(self, angle_deg: float) -> float:
+        """Rotate to an absolute angle (degrees), wait, verify, and return the confirmed angle.
+
+        The target is rounded to whole motor steps.  Raises a
+        :class:`rig.errors.RigError` subclass (the table is then stopped and
+        :attr:`position_deg` tells what is still known) or ``ValueError`` for a
+        non-finite angle.
+        """
+        if isinstance(angle_deg, bool) or not isinstance(angle_deg, (int, float)) or not math.isfinite(angle_deg):
+            raise ValueError(f"turntable angle must be a finite number of degrees, got {angle_deg!r}")
+        with self._lock:
+            if not self.link.is_open:
+                raise DeviceDisconnected(f"turntable on {self.link.port!r} is not connected: connect and home it")
+            if not self._homed:
+                raise DeviceRefused("turntable is not homed (position unknown): home it before moving")
+            target = self._quantise(float(angle_deg))
+            start = self._position
+            self._position = None
+            try:
+                if self.backlash_deg > 0 and (start is None or target < start - self._tolerance
+                                              or not self._loaded_positive):
+                    margin = max(2.0 / self.steps_per_degree, 0.1 * self.backlash_deg)
+                    pre = self._quantise(target - self.backlash_deg - margin)
+                    self._move_verified(start, pre)
+                    start = pre
+                self._move_verified(start, target)
+            except BaseException:
+                self._halt_quietly()
+                raise
+            self._loaded_positive = True
+            self._position = target
+            return target
+
+    def stop(self) -> None:
+        """Stop now (feed hold, then soft reset) and confirm the controller is stopped.
+
+        Raises a :class:`rig.errors.RigError` when the controller cannot be reached.
+        """
+        with self._lock:
+            self._halt()
+
+    # -- protocol -------------------------------------------------------------------------------
+    def _soft_reset(self) -> None:
+        """Send 0x18 and wait for the GRBL 1.1 greeting; explain what came instead if it never does."""
+        heard: list[str] = []
+        for _ in range(self.retries + 1):
+            self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
+            self.link.write(gp.RESET)
+            deadline = time.monotonic() + self.connect_timeout_s
+            try:
+                while True:
+                    line = self.link.readline(deadline)
+                    m = gp.GREETING_RE.match(line.strip())
+                    if m:
+                        major, minor = int(m.group(1)), int(m.group(2))
+                        if (major, minor) < (1, 1):
+                            raise DeviceRefused(
+                                f"controller on {self.link.port!r} runs {line.strip()!r}; GRBL 1.1 or later is needed"
+                            )
+                        self.firmware = line.strip()
+                        self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
+                        return
+                    heard.append(line)
+            except DeviceTimeout:
+                continue
+        port, baud = self.link.port, self.link.baud
+        readable = [h for h in heard if h.isprintable() and "\ufffd" not in h]
+        if readable:
+            raise DeviceNotFound(
+                f"the device on port {port!r} is not a GRBL 1.1 controller: it answered {readable[0]!r} "
+                "(check the 'port' setting)"
+            )
+        if heard:
+            raise DeviceNotFound(
+                f"only unreadable bytes came back from port {port!r} at {baud} baud: check the 'baud' setting "
+                "(GRBL 1.1 uses 115200)"
+            )
+        raise DeviceTimeout(
+            f"no answer from port {port!r} within {self.connect_timeout_s:g} s: check the 'port' setting and "
+            "that the controller is powered"
+        )
+
+    def _configure(self) -> None:
+        """Read ``$$``; write ``$100`` when it disagrees with ``steps_per_degree``; learn the rate ``$110``."""
+        settings = self._settings()
+        if abs(settings.get(100, -1.0) - self.steps_per_degree) > 1e-6 * self.steps_per_degree + 5e-4:
+            self._command(f"$100={self.steps_per_degree:.3f}")
+            settings = self._settings()
+            if abs(settings.get(100, -1.0) - self.steps_per_degree) > 1e-6 * self.steps_per_degree + 5e-4:
+                raise DeviceRefused(
+                    f"controller kept $100={settings.get(100)} after writing steps_per_degree="
+                    f"{self.steps_per_degree:g}"
+                )
+        rate_deg_min = settings.get(110, 0.0)
+        if rate_deg_min <= 0:
+            raise DeviceRefused(f"controller reports max rate $110={rate_deg_min}: set a positive rate")
+        self.rate_deg_s = rate_deg_min / 60.0
+        self._homed = False
+
+    def _settings(self) -> dict[int, float]:
+        return {r.setting[0]: r.setting[1] for r in self._command("$$") if r.kind == "setting"}
+
+    def _command(self, line: str, timeout: float | None = None) -> list[gp.Reply]:
+        """Send one line and return the lines before its ``ok``; re-send after a lost or garbled reply."""
+        timeout = self.reply_timeout_s if timeout is None else timeout
+        for attempt in range(self.retries + 1):
+            self.link.write_line(line)
+            deadline = time.monotonic() + timeout
+            info: list[gp.Reply] = []
+            try:
+                while True:
+                    reply = gp.parse_reply(self.link.readline(deadline))
+                    if reply.kind == "ok":
+                        return info
+                    if reply.kind == "error":
+                        if reply.code in _RETRYABLE_ERRORS and attempt < self.retries:
+                            break
+                        raise DeviceRefused(
+                            f"controller refused {line!r}: error:{reply.code} ({gp.describe_error(reply.code)})"
+                        )
+                    if reply.kind == "alarm":
+                        self._forget()
+                        raise DeviceRefused(
+                            f"controller raised ALARM:{reply.code} ({gp.describe_alarm(reply.code)}) on {line!r}"
+                        )
+                    if reply.kind == "garbage":
+                        break
+                    info.append(reply)
+            except DeviceTimeout:
+                pass
+            self._resync()
+        raise DeviceTimeout(
+            f"controller on {self.link.port!r} did not acknowledge {line!r} after {self.retries + 1} attempts"
+        )
+
+    def _resync(self) -> gp.Status:
+        """Drop whatever is in flight and re-establish the reply stream with a fresh status report."""
+        self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
+        return self._status()
+
+    def _status(self) -> gp.Status:
+        """One status report (``?``), tolerating lost and garbled lines; ALARM lines are remembered."""
+        for _ in range(self.retries + 1):
+            self.link.write(gp.STATUS_QUERY)
+            deadline = time.monotonic() + self.reply_timeout_s
+            try:
+                while True:
+                    reply = gp.parse_reply(self.link.readline(deadline))
+                    if reply.kind == "status":
+                        return reply.status
+                    if reply.kind == "alarm":
+                        self._last_alarm = reply.code
+                    elif reply.kind == "greeting":
+                        self._forget()  # the controller reset by itself: nothing we knew holds
+            except DeviceTimeout:
+                self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
+        raise DeviceTimeout(f"no status report from the controller on {self.link.port!r}")
+
+    def _alarm_error(self, doing: str) -> DeviceRefused:
+        self._forget()
+        code = self._last_alarm
+        self._last_alarm = None
+        what = f"ALARM:{code} ({gp.describe_alarm(code)})" if code is not None else "alarm state"
+        return DeviceRefused(f"turntable controller is in {what} while {doing}; home it again")
+
+    def _move_verified(self, start: float | None, target: float) -> None:
+        """Command an absolute move to ``target`` and return once the controller confirms it is idle there."""
+        command = f"G90 G0 X{target:.6f}"
+        distance = abs(target - start) if start is not None else 360.0
+        nominal = distance / self.rate_deg_s
+        deadline = time.monotonic() + 2.0 * nominal + self.move_margin_s
+        self._last_alarm = None
+        self._command(command)
+        resends = 0
+        last_pos, last_change = None, time.monotonic()
+        while True:
+            now = time.monotonic()
+            if now > deadline:
+                raise DeviceTimeout(
+                    f"turntable did not reach {target:.4f} deg within {2.0 * nominal + self.move_margin_s:.2f} s "
+                    f"(last reported at {last_pos} deg)"
+                )
+            status = self._status()
+            if status.state == "Alarm":
+                raise self._alarm_error(f"moving to {target:.4f} deg")
+            if status.state == "Idle":
+                if abs(status.mpos - target) <= self._tolerance:
+                    if self._confirm_idle_at(target, deadline):
+                        return
+                    continue
+                resends += 1
+                if resends > self.retries:
+                    raise DeviceRefused(
+                        f"controller stays idle at {status.mpos:.4f} deg instead of {target:.4f} deg "
+                        f"after {self.retries} re-sends"
+                    )
+                self._command(command)
+                last_change = time.monotonic()
+                continue
+            if status.state in ("Run", "Jog", "Home"):
+                if status.mpos != last_pos:
+                    last_pos, last_change = status.mpos, now
+                elif now - last_change > self.stall_timeout_s:
+                    raise DeviceTimeout(
+                        f"turntable stalled at {status.mpos:.4f} deg while moving to {target:.4f} deg "
+                        f"(no progress for {self.stall_timeout_s:g} s)"
+                    )
+            else:
+                raise DeviceRefused(f"controller entered state {status.state!r} while moving to {target:.4f} deg")
+            if self.poll_interval_s:
+                time.sleep(self.poll_interval_s)
+
+    def _confirm_idle_at(self, target: float, deadline: float) -> bool:
+        """A second status report must also say Idle at ``target``: one report can be a garbled fluke."""
+        while time.monotonic() <= deadline:
+            status = self._status()
+            if status.state == "Alarm":
+                raise self._alarm_error(f"confirming the position {target:.4f} deg")
+            return status.state == "Idle" and abs(status.mpos - target) <= self._tolerance
+        raise DeviceTimeout(f"could not confirm the turntable at {target:.4f} deg in time")
+
+    def _halt(self) -> None:
+        """Feed hold, wait for the hold to complete, soft reset; keep the position only if it is confirmed."""
+        self._position = None
+        self._loaded_positive = False
+        self.link.write(gp.FEED_HOLD)
+        deadline = time.monotonic() + self.stall_timeout_s
+        previous = None
+        while time.monotonic() < deadline:  # decelerating; a hung controller never leaves Run
+            status = self._status()
+            if status.state != "Run" or status.mpos == previous:
+                break
+            previous = status.mpos
+            time.sleep(min(self.poll_interval_s, 0.01))
+        self._soft_reset()
+        status = self._status()
+        if status.state == "Alarm":
+            self._forget()
+        elif status.state == "Idle" and self._homed:
+            if self._confirm_idle_at(status.mpos, time.monotonic() + self.reply_timeout_s * (self.retries + 1)):
+                self._position = status.mpos
+        else:
+            raise DeviceRefused(f"controller is in state {status.state!r} after a stop")
+
+    def _halt_quietly(self) -> None:
+        """Best-effort stop on an error path: never raises; an unreachable controller is closed and forgotten."""
+        try:
+            if self.link.is_open:
+                self._halt()
+        except (RigError, OSError):
+            self._forget()
+            self.link.close()

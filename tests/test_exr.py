@@ -1,0 +1,103 @@
+"""EXR round trips (OpenEXR), Radiance .hdr reading (OpenImageIO), corrupt files, atomic writes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hdr.exr import read_exr, read_image, write_exr
+
+
+def test_round_trip_with_extra_channels_and_attributes(tmp_path):
+    rng = np.random.default_rng(0)
+    rgb = (rng.random((12, 20, 3)) * 1e4).astype(np.float32)
+    var = rng.random((12, 20, 3)).astype(np.float32)
+    mask = (rng.random((12, 20)) > 0.5).astype(np.float32)
+    attrs = {"circle": [10.5, 6.25, 4.0], "times": [0.001, 0.01], "source": "a.dng"}
+    write_exr(tmp_path / "a.exr", rgb, {"variance": var, "mask": mask}, attrs)
+    back, extra, meta = read_exr(tmp_path / "a.exr")
+    assert back.dtype == np.float32 and np.array_equal(back, rgb)
+    assert np.array_equal(extra["variance"], var) and np.array_equal(extra["mask"], mask)
+    for key, value in attrs.items():
+        assert meta[key] == value
+    assert "tool_version" in meta
+
+
+def test_half_precision_and_single_channel(tmp_path):
+    img = np.linspace(0.01, 100, 60, dtype=np.float32).reshape(6, 10)
+    write_exr(tmp_path / "y.exr", img, half=True)
+    back = read_image(tmp_path / "y.exr")
+    assert back.shape == (6, 10, 1)
+    assert np.abs(back[:, :, 0] / img - 1).max() < 1e-3  # half: 11-bit mantissa
+
+
+def test_latlong_flag_is_the_standard_envmap_attribute(tmp_path):
+    import OpenEXR
+
+    write_exr(tmp_path / "env.exr", np.ones((4, 8, 3), np.float32), latlong=True)
+    with OpenEXR.File(str(tmp_path / "env.exr"), header_only=True) as f:
+        assert f.header()["envmap"] == OpenEXR.ENVMAP_LATLONG
+
+
+def test_radiance_hdr_read_through_openimageio(tmp_path):
+    import OpenImageIO as oiio
+
+    truth = (np.random.default_rng(1).random((8, 16, 3)) * 50 + 0.1).astype(np.float32)
+    out = oiio.ImageOutput.create(str(tmp_path / "p.hdr"))
+    out.open(str(tmp_path / "p.hdr"), oiio.ImageSpec(16, 8, 3, oiio.FLOAT))
+    out.write_image(truth)
+    out.close()
+    back = read_image(tmp_path / "p.hdr")
+    assert back.shape == truth.shape
+    # RGBE: 8-bit mantissas sharing the exponent of the largest channel of the pixel.
+    assert np.all(np.abs(back - truth) <= truth.max(axis=2, keepdims=True) / 128)
+
+
+def test_real_probes_read(real_probes):
+    for path in real_probes:
+        img = read_image(path)
+        assert img.shape == (128, 256, 3) and np.all(img >= 0) and img.max() > 0
+
+
+@pytest.mark.parametrize("suffix", [".exr", ".hdr"])
+def test_truncated_and_corrupt_files_are_clear_errors(tmp_path, suffix):
+    import OpenImageIO as oiio
+
+    good = tmp_path / f"good{suffix}"
+    img = np.random.default_rng(2).random((64, 64, 3)).astype(np.float32) + 0.1
+    if suffix == ".exr":
+        write_exr(good, img)
+    else:
+        out = oiio.ImageOutput.create(str(good))
+        out.open(str(good), oiio.ImageSpec(64, 64, 3, oiio.FLOAT))
+        out.write_image(img)
+        out.close()
+    data = good.read_bytes()
+    cut = tmp_path / f"cut{suffix}"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=f"cut\\{suffix}"):
+        read_image(cut)
+    junk = tmp_path / f"junk{suffix}"
+    junk.write_bytes(b"#?RADIANCE\n" + bytes(range(256)) if suffix == ".hdr" else b"\x76\x2f\x31\x01junk")
+    with pytest.raises(ValueError, match=f"junk\\{suffix}"):
+        read_image(junk)
+
+
+def test_nan_pixels_are_rejected_naming_the_file(tmp_path):
+    img = np.ones((4, 4, 3), np.float32)
+    img[2, 1, 0] = np.nan
+    write_exr(tmp_path / "nan.exr", img)
+    with pytest.raises(ValueError, match=r"nan\.exr.*NaN/inf.*row 2, col 1"):
+        read_image(tmp_path / "nan.exr")
+    assert np.isnan(read_image(tmp_path / "nan.exr", allow_nonfinite=True)[2, 1, 0])
+
+
+def test_failed_write_keeps_the_old_file(tmp_path):
+    target = tmp_path / "keep.exr"
+    write_exr(target, np.full((4, 4, 3), 2.0, np.float32))
+    with pytest.raises(ValueError, match="not JSON-serialisable"):
+        write_exr(target, np.zeros((4, 4, 3), np.float32), attributes={"bad": object()})
+    with pytest.raises(ValueError, match="extra channel 'v'"):
+        write_exr(target, np.zeros((4, 4, 3), np.float32), {"v": np.zeros((3, 3))})
+    assert np.all(read_image(target) == 2.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr"]

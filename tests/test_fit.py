@@ -1,0 +1,170 @@
+"""fit_brdf on real probes against the brute-force ground truth: accuracy, model choice, solvers, stability.
+
+Fit under grace (or its rotations about the vertical axis), relight under pisa,
+both box-filtered to 64x32; spheres of 48-96 px; errors are relative RMS
+within the fitter's limb margin (``test_fit_scenes.relight_error``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fit.analytic import GGX, Lambertian
+from fit.fitter import fit_brdf
+from fit.scene import Environment, Scene
+from hdr.envmap import latlong_directions
+from test_fit_scenes import ALBEDO, GGX_MATERIAL, make_scenes, probes, relight_error, rotations, sphere  # noqa: F401
+
+
+def _determined_choice(result):
+    chosen = result.report["chosen_model"]
+    assert result.report["candidates"][chosen]["determined"], result.report["candidates"][chosen]
+    return chosen
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.01])
+def test_one_scene_lambertian_relights_within_half_percent(probes, noise):
+    fit_env, test_env = probes
+    normals, weights = sphere(96)
+    truth = Lambertian(ALBEDO)
+    scenes = make_scenes(truth, [fit_env], normals, weights, noise=noise)
+    res = fit_brdf(scenes, model="diffuse", lmax=8, progress=False)
+    err = relight_error(res.brdf, truth, test_env, normals)
+    print(f"lambertian 1 scene noise={noise}: diffuse relight {err:.4%}, albedo {res.brdf.albedo}")
+    assert err <= 0.005
+    np.testing.assert_allclose(res.brdf.albedo, ALBEDO, rtol=0.005)
+    auto = fit_brdf(scenes, lmax=8, progress=False)
+    err_auto = relight_error(auto.brdf, truth, test_env, normals)
+    print(f"  auto -> {auto.report['chosen_model']}: relight {err_auto:.4%}")
+    assert _determined_choice(auto) != "full"
+    assert err_auto <= 0.005
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.01])
+def test_one_scene_ggx_relights_within_eight_percent(probes, noise):
+    fit_env, test_env = probes
+    normals, weights = sphere(96)
+    truth = GGX(**GGX_MATERIAL)
+    scenes = make_scenes(truth, [fit_env], normals, weights, noise=noise)
+    auto = fit_brdf(scenes, lmax=8, pmax=8, progress=False)
+    chosen = _determined_choice(auto)
+    assert chosen not in ("full", "full+prior")
+    assert auto.report["identifiability"]["models"]["full"]["determined"] is False
+    err = relight_error(auto.brdf, truth, test_env, normals)
+    lobe = fit_brdf(scenes, model="lobe", lmax=8, progress=False)
+    err_lobe = relight_error(lobe.brdf, truth, test_env, normals)
+    print(f"ggx 1 scene noise={noise}: auto -> {chosen} relight {err:.4%}; lobe {err_lobe:.4%}")
+    assert err <= 0.08
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.01])
+def test_twelve_scenes_ggx_full_model_relights_within_three_percent(probes, noise):
+    fit_env, test_env = probes
+    normals, weights = sphere(64)
+    truth = GGX(**GGX_MATERIAL)
+    scenes = make_scenes(truth, rotations(fit_env, 12), normals, weights, noise=noise)
+    res = fit_brdf(scenes, model="full", lmax=8, pmax=8, progress=False)
+    assert res.report["identifiability"]["models"]["full"]["determined"]
+    assert res.report["candidates"]["full"]["determined"]
+    err = relight_error(res.brdf, truth, test_env, normals)
+    prior = fit_brdf(scenes, model="full+prior", lmax=8, pmax=8, progress=False)
+    err_prior = relight_error(prior.brdf, truth, test_env, normals)
+    print(f"ggx 12 scenes noise={noise}: full relight {err:.4%}, full+prior {err_prior:.4%}")
+    assert err <= 0.03 and err_prior <= 0.03
+
+
+def test_joint_and_tikhonov_at_least_as_accurate_as_paper(probes):
+    fit_env, test_env = probes
+    normals, weights = sphere(48)
+    truth = GGX(**GGX_MATERIAL)
+    one = make_scenes(truth, [fit_env], normals, weights)
+    many = make_scenes(truth, rotations(fit_env, 6), normals, weights)
+    table = []
+    cases = [("diffuse", one, l) for l in range(1, 9)] + [("lobe", one, l) for l in range(1, 9)]
+    cases += [("full", many, l) for l in (1, 2, 3, 4, 5)]
+    for model, scenes, lmax in cases:
+        errs = {
+            s: relight_error(fit_brdf(scenes, model=model, lmax=lmax, pmax=lmax, solver=s, progress=False).brdf, truth, test_env, normals)
+            for s in ("paper", "joint", "tikhonov")
+        }
+        table.append((model, len(scenes), lmax, errs))
+    print("\nmodel   scenes l=p   paper    joint    tikhonov")
+    for model, n, lmax, e in table:
+        print(f"{model:8s}{n:5d}{lmax:5d}  {e['paper']:.4f}  {e['joint']:.4f}  {e['tikhonov']:.4f}")
+    for model, n, lmax, e in table:
+        assert min(e["joint"], e["tikhonov"]) <= e["paper"] * 1.001 + 1e-6, (model, lmax, e)
+
+
+def _uniform_env(fn, rows=32) -> Environment:
+    dirs, solid = latlong_directions(rows, 2 * rows)
+    dirs = dirs.reshape(-1, 3)
+    return Environment(dirs, fn(dirs), solid.reshape(-1))
+
+
+def test_stability_low_band_lighting_reports_unobservable_bands():
+    env = _uniform_env(lambda d: (1.0 + 0.5 * d[:, 1:2] + 0.3 * d[:, 0:1]) * np.array([[1.0, 0.9, 0.8]]))
+    normals, weights = sphere(48)
+    truth = Lambertian(ALBEDO)
+    res = fit_brdf(make_scenes(truth, [env], normals, weights), lmax=8, progress=False)
+    assert res.report["unobservable_bands"] == [2, 3, 4, 5, 6, 7, 8]
+    assert "no lighting energy" in res.report["identifiability_summary"]
+    assert _determined_choice(res) in ("diffuse", "lobe", "microfacet")
+    pred = res.brdf.predict(env, normals)
+    assert np.all(np.isfinite(pred))
+    # under the same low-band lighting the prediction is right (bands 0-1 carry all of it)
+    assert relight_error(res.brdf, truth, env, normals) < 0.01
+
+
+def test_stability_single_bright_pixel_and_huge_dynamic_range(probes):
+    fit_env, test_env = probes
+    normals, weights = sphere(48)
+    truth = Lambertian(ALBEDO)
+    single = _uniform_env(lambda d: np.zeros((len(d), 3)))
+    single.radiance[700] = 50.0
+    sun = Environment(fit_env.dirs, fit_env.radiance.copy(), fit_env.solid_angle)
+    sun.radiance[900] = 1e6 * np.median(fit_env.radiance)
+    for env in (single, sun):
+        res = fit_brdf(make_scenes(truth, [env], normals, weights), model="diffuse", lmax=8, progress=False)
+        assert np.all(np.isfinite(res.brdf.x))
+        err = relight_error(res.brdf, truth, test_env, normals)
+        assert err < 0.02, err
+
+
+def test_stability_black_images_tiny_sphere_and_bad_pixels(probes):
+    fit_env, _ = probes
+    normals, weights = sphere(48)
+    black = [Scene(fit_env, normals, np.zeros((len(normals), 3)), weights)]
+    res = fit_brdf(black, lmax=4, pmax=4, progress=False)
+    assert np.all(np.isfinite(res.brdf.predict(fit_env, normals)))
+    assert np.allclose(res.brdf.predict(fit_env, normals), 0.0)
+
+    tiny_n, tiny_w = sphere(10)  # 5 px radius: a few dozen pixels
+    truth = Lambertian(ALBEDO)
+    res = fit_brdf(make_scenes(truth, [fit_env], tiny_n, tiny_w), lmax=8, pmax=8, progress=False)
+    _determined_choice(res)
+    assert np.all(np.isfinite(res.brdf.predict(fit_env, normals)))
+
+    scenes = make_scenes(truth, [fit_env], normals, weights)
+    rad = scenes[0].radiance.copy()
+    rad[:7] = np.nan
+    w = weights.copy()
+    w[10:15] = 0.0
+    res = fit_brdf([Scene(fit_env, normals, rad, w)], model="diffuse", lmax=4, progress=False)
+    assert res.report["pixels"]["non_finite"] == 7
+    assert res.report["pixels"]["weight_zero"] == 5
+    assert np.all(np.isfinite(res.brdf.x))
+
+
+def test_bad_input_is_a_clear_error(probes):
+    fit_env, _ = probes
+    normals, weights = sphere(32)
+    grey = Environment(fit_env.dirs, fit_env.radiance[:, :1], fit_env.solid_angle)
+    with pytest.raises(ValueError, match="channels"):
+        fit_brdf([Scene(grey, normals, np.ones((len(normals), 3)), weights)], progress=False)
+    with pytest.raises(ValueError, match="lmax"):
+        fit_brdf(make_scenes(Lambertian(ALBEDO), [fit_env], normals, weights), lmax=40, progress=False)
+    with pytest.raises(ValueError, match="unknown model"):
+        fit_brdf(make_scenes(Lambertian(ALBEDO), [fit_env], normals, weights), model="phong", progress=False)

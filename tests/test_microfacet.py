@@ -1,0 +1,100 @@
+"""The microfacet model: identifiable from one image, relights under another real probe, recovers alpha."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fit.analytic import GGX, Lambertian
+from fit.brdf import FittedBRDF, brdf_from_dict
+from fit.groundtruth import render_groundtruth
+from fit.microfacet import MicrofacetBRDF, coarsen_environment, fit_microfacet
+from fit.scene import Environment, Scene
+
+
+def _sphere_normals(size: int, max_radius: float = 0.95) -> np.ndarray:
+    """Normals of the pixels of a size x size sphere image (MATH.md convention) within max_radius of the centre."""
+    y, x = np.mgrid[0:size, 0:size] + 0.5
+    dx, dy = (x - size / 2) / (size / 2), (size / 2 - y) / (size / 2)
+    inside = dx**2 + dy**2 < max_radius**2
+    return np.stack([dx[inside], dy[inside], np.sqrt(1 - dx[inside] ** 2 - dy[inside] ** 2)], axis=1)
+
+
+def _probe_env(path, factor: int) -> Environment:
+    """A real lat-long probe box-downsampled by ``factor`` (A's lat-long geometry, B's reader)."""
+    from hdr.envmap import latlong_directions
+    from hdr.exr import read_image
+
+    img = np.asarray(read_image(path), dtype=np.float64)
+    h, w = img.shape[0] // factor, img.shape[1] // factor
+    img = img[: h * factor, : w * factor].reshape(h, factor, w, factor, -1).mean(axis=(1, 3))
+    dirs, omega = latlong_directions(h, w)
+    return Environment(dirs.reshape(-1, 3), img.reshape(-1, img.shape[-1]), omega.ravel())
+
+
+def _relative_rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((a - b) ** 2) / np.mean(b**2)))
+
+
+def test_one_real_probe_fit_relights_and_recovers_alpha(real_probes):
+    fit_env = _probe_env(real_probes[1], 2)  # 128 x 64
+    test_env = _probe_env(real_probes[2], 2)
+    normals = _sphere_normals(64)
+    truth = GGX(0.3, 0.04, [0.6, 0.4, 0.2])
+    observed = render_groundtruth(truth, normals, fit_env)
+    noisy = observed * (1 + 0.01 * np.random.default_rng(0).standard_normal(observed.shape))  # 1% noise
+    brdf, report = fit_microfacet([Scene(fit_env, normals, noisy, np.ones(len(normals)))], progress=False)
+    assert isinstance(brdf, FittedBRDF) and brdf.model == "microfacet"
+    assert abs(report["alpha"] / 0.3 - 1) < 0.10
+    assert not report["alpha_at_bound"]
+    relit = brdf.predict(test_env, normals)
+    err = _relative_rms(relit, render_groundtruth(truth, normals, test_env))
+    assert err < 0.08
+    np.testing.assert_allclose(report["diffuse"], [0.6, 0.4, 0.2], rtol=0.05)
+    back = brdf_from_dict(brdf.to_dict())
+    assert isinstance(back, MicrofacetBRDF)
+    np.testing.assert_array_equal(back.evaluate(0.3, 0.5, 2.0), brdf.evaluate(0.3, 0.5, 2.0))
+
+
+def test_lambertian_sphere_gives_no_lobe():
+    # A single directional-ish light plus ambient: the fit must put nothing into the lobe.
+    rng = np.random.default_rng(1)
+    dirs = rng.normal(size=(4000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    rad = 0.2 + 5.0 * np.maximum(dirs @ np.array([0.5, 0.6, 0.62]), 0) ** 8
+    env = Environment(dirs, rad[:, None], np.full(4000, 4 * math.pi / 4000))
+    normals = _sphere_normals(32)
+    observed = render_groundtruth(Lambertian(0.7), normals, env)
+    brdf, report = fit_microfacet([Scene(env, normals, observed, np.ones(len(normals)))], env_rows=24, progress=False)
+    assert report["diffuse"][0] == pytest.approx(0.7, rel=0.02)
+    relit = brdf.predict(env, normals)
+    assert _relative_rms(relit, observed) < 0.01
+
+
+def test_coarsen_environment_preserves_energy_and_first_moment():
+    rng = np.random.default_rng(2)
+    dirs = rng.normal(size=(5000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    rad = rng.uniform(0, 3, size=(5000, 2))
+    omega = rng.uniform(0, 1e-3, 5000)
+    omega[:10] = 0
+    env = Environment(dirs, rad, omega)
+    c = coarsen_environment(env, 8)
+    assert len(c.solid_angle) <= 128
+    np.testing.assert_allclose(c.solid_angle.sum(), omega.sum(), rtol=1e-12)
+    np.testing.assert_allclose((c.radiance * c.solid_angle[:, None]).sum(0), (rad * omega[:, None]).sum(0), rtol=1e-12)
+
+
+def test_bad_input():
+    env = Environment(np.array([[0.0, 0.0, 1.0]]), np.ones((1, 3)), np.ones(1))
+    n = np.array([[0.0, 0.0, 1.0]])
+    with pytest.raises(ValueError, match="channel"):
+        fit_microfacet([Scene(env, n, np.ones((1, 1)), np.ones(1))], progress=False)
+    with pytest.raises(ValueError, match="positive weight"):
+        fit_microfacet([Scene(env, n, np.ones((1, 3)), np.zeros(1))], progress=False)
+    with pytest.raises(ValueError, match="non-finite"):
+        fit_microfacet([Scene(env, n, np.full((1, 3), np.nan), np.ones(1))], progress=False)
+    with pytest.raises(ValueError, match="at least one scene"):
+        fit_microfacet([], progress=False)

@@ -1,0 +1,134 @@
+"""Solvers on generic matrices: streamed QR against dense numpy oracles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fit.solvers import StreamedQR, solve
+
+
+def _stream(a: np.ndarray, b: np.ndarray, w: np.ndarray, sizes=(7, 300, 1, 64)) -> StreamedQR:
+    """Fold (m, n, C) rows into a StreamedQR in irregular blocks."""
+    qr = StreamedQR(a.shape[1], a.shape[2])
+    start, i = 0, 0
+    while start < a.shape[0]:
+        stop = start + sizes[i % len(sizes)]
+        qr.add(a[start:stop], b[start:stop], w[start:stop])
+        start, i = stop, i + 1
+    return qr
+
+
+def _problem(m=900, n=12, c=2, seed=0, noise=1e-3):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(m, n, c)) * np.logspace(0, 3, n)[None, :, None]  # columns of very different scale
+    x = rng.normal(size=(n, c))
+    b = np.einsum("mnc,nc->mc", a, x) + noise * rng.normal(size=(m, c))
+    w = rng.uniform(0.2, 1.0, size=m)
+    w[::17] = 0.0
+    return a, b, w, x
+
+
+def _dense(a, b, w, c):
+    sw = np.sqrt(w)
+    return a[:, :, c] * sw[:, None], b[:, c] * sw
+
+
+def test_joint_matches_dense_weighted_lstsq():
+    a, b, w, _ = _problem()
+    sol = solve(_stream(a, b, w), "joint")
+    for c in range(a.shape[2]):
+        ad, bd = _dense(a, b, w, c)
+        ref = np.linalg.lstsq(ad, bd, rcond=None)[0]
+        np.testing.assert_allclose(sol.x[:, c], ref, rtol=1e-9, atol=1e-12)
+        assert sol.rank[c] == a.shape[1]
+        ref_res = np.sum((ad @ ref - bd) ** 2)
+        assert sol.residual[c] == pytest.approx(ref_res, rel=1e-6)
+        # condition number of the column-equilibrated matrix
+        s = np.linalg.svd(ad / np.linalg.norm(ad, axis=0), compute_uv=False)
+        assert sol.cond[c] == pytest.approx(s[0] / s[-1], rel=1e-8)
+
+
+def test_joint_rank_deficient_is_minimum_norm_and_reports_rank():
+    a, b, w, _ = _problem(n=8, c=1)
+    a[:, 5] = a[:, 2]  # duplicate column (same scale): rank 7
+    sol = solve(_stream(a, b, w), "joint")
+    ad, bd = _dense(a, b, w, 0)
+    d = np.linalg.norm(ad, axis=0)
+    ref = np.linalg.pinv(ad / d) @ bd / d  # minimum norm in equilibrated variables
+    np.testing.assert_allclose(sol.x[:, 0], ref, rtol=1e-7, atol=1e-10)
+    assert sol.rank[0] == 7
+    assert np.isinf(sol.cond[0])
+
+
+def test_prior_fills_the_null_space():
+    a, b, w, _ = _problem(n=6, c=1)
+    a[:, 4] = 0.0  # unknown 4 never observed
+    x0 = np.arange(6, dtype=float)[:, None] + 10.0
+    sol = solve(_stream(a, b, w), "joint", x0=x0)
+    assert sol.x[4, 0] == pytest.approx(14.0, abs=1e-12)
+    ad, bd = _dense(a, b, w, 0)
+    keep = [0, 1, 2, 3, 5]
+    ref = np.linalg.lstsq(ad[:, keep], bd, rcond=None)[0]
+    np.testing.assert_allclose(sol.x[keep, 0], ref, rtol=1e-8)
+
+
+def test_paper_is_the_seed_band_by_band_algorithm():
+    a, b, w, x_true = _problem(n=9, c=2)
+    bands = np.repeat(np.arange(3), 3)
+    sol = solve(_stream(a, b, w), "paper", bands=bands)
+    for c in range(2):
+        ad, bd = _dense(a, b, w, c)
+        res, ref = bd.copy(), np.zeros(9)
+        for l in range(3):  # seed 3.6: solve A_l x_l = b by normal equations, b -= A_l x_l
+            cols = bands == l
+            al = ad[:, cols]
+            ref[cols] = np.linalg.inv(al.T @ al) @ al.T @ res
+            res -= al @ ref[cols]
+        np.testing.assert_allclose(sol.x[:, c], ref, rtol=1e-6)
+    # Non-orthogonal blocks: the one-sweep solve is biased, the joint solve is not.
+    joint = solve(_stream(a, b, w), "joint")
+    assert np.linalg.norm(joint.x - x_true) < 0.1 * np.linalg.norm(sol.x - x_true)
+
+
+def test_tikhonov_matches_closed_form_and_beats_joint_on_ill_posed_problem():
+    rng = np.random.default_rng(3)
+    m, n = 400, 12
+    t = np.linspace(0, 1, m)
+    a = np.stack([t**k for k in range(n)], axis=1)[:, :, None]  # monomials: cond ~ 1e8 after equilibration
+    x_true = np.zeros((n, 1))
+    x_true[:3, 0] = [1.0, -2.0, 1.5]
+    b = np.einsum("mnc,nc->mc", a, x_true) + 1e-3 * rng.normal(size=(m, 1))
+    w = np.ones(m)
+    qr = _stream(a, b, w)
+    tik = solve(qr, "tikhonov")
+    # oracle with the chosen lambda: augmented least squares [A/D; lam I] y = [b; 0], x = y / D
+    d = np.linalg.norm(a[:, :, 0], axis=0)
+    s_max = np.linalg.svd(a[:, :, 0] / d, compute_uv=False)[0]
+    lam = tik.lam[0] * s_max
+    ad = a[:, :, 0] / d
+    y = np.linalg.lstsq(np.vstack([ad, lam * np.eye(n)]), np.concatenate([b[:, 0], np.zeros(n)]), rcond=None)[0]
+    np.testing.assert_allclose(tik.x[:, 0], y / d, rtol=1e-6, atol=1e-9)
+    assert tik.lam[0] > 0
+    # prediction error on a fine grid: regularised no worse than the truncated joint solve
+    joint = solve(qr, "joint")
+    tt = np.linspace(0, 1, 2000)
+    g = np.stack([tt**k for k in range(n)], axis=1)
+    err = lambda x: np.linalg.norm(g @ (x[:, 0] - x_true[:, 0]))
+    assert err(tik.x) <= 1.05 * err(joint.x)
+    assert err(tik.x) < 0.01 * np.linalg.norm(g @ x_true[:, 0])
+
+
+@pytest.mark.parametrize("solver", ["paper", "joint", "tikhonov"])
+def test_all_zero_system_gives_finite_zero(solver):
+    a = np.zeros((50, 4, 3))
+    b = np.zeros((50, 3))
+    sol = solve(_stream(a, b, np.ones(50)), solver, bands=np.array([0, 1, 1, 2]))
+    assert np.all(sol.x == 0.0)
+    assert np.all(sol.rank == 0)
+    assert np.all(np.isfinite(sol.residual))
+
+
+def test_unknown_solver_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown solver"):
+        solve(StreamedQR(2, 1), "cholesky")
