@@ -173,17 +173,18 @@ def scene_lighting(config: SessionConfig, merged: dict[tuple[int, float], Merged
     kwargs = {"rim": probe.rim}
     if probe.albedo is not None:
         kwargs["albedo"] = probe.albedo
-    samples = [unwrap_probe(merged[(scene, a)].radiance, probe.circle, **kwargs)
-               for a in config.table_angles(scene)]
-    if len(samples) > 1:
-        env = average_rotations(samples)
+    frames = [merged[(scene, a)] for a in config.table_angles(scene)]
+    unusable = ~np.all([f.usable.all(axis=-1) for f in frames], axis=0)
+    if len(frames) > 1:
+        image, circle = average_rotations([f.radiance for f in frames], [probe.circle] * len(frames))
     else:
-        env = samples[0]
-    valid = env.valid & np.all(np.isfinite(env.radiance), axis=1)
+        image, circle = frames[0].radiance, probe.circle
+    env = unwrap_probe(image, circle, mask=unusable, **kwargs)
+    valid = env.valid & np.all(np.isfinite(env.radiance), axis=1) & (env.solid_angle > 0)
     return Environment(
-        np.asarray(env.dirs, np.float64),
-        np.where(valid[:, None], np.asarray(env.radiance, np.float64), 0.0),
-        np.where(valid, np.asarray(env.solid_angle, np.float64), 0.0),
+        np.asarray(env.dirs[valid], np.float64),
+        np.asarray(env.radiance[valid], np.float64),
+        np.asarray(env.solid_angle[valid], np.float64),
     )
 
 

@@ -14,7 +14,7 @@ there (relative RMS over the weighted pixels).  Times are wall-clock medians
 of repeated fits, progress bars off.
 
 Headline timings: a 512x512 three-channel fit of ``full`` at ``l = p = 8``
-with twelve scenes and with one scene.  Their images are the ground-truth
+with twelve scenes and with one scene (``--quick``: 48x48 at ``l = p = 3``).  Their images are the ground-truth
 renders of the table's sphere resampled (bilinear, in normal space) onto the
 512x512 pixel grid: timing depends on the pixel count, not on the image
 content, and brute-force rendering 12 x 512^2 pixels would dominate the
@@ -86,6 +86,8 @@ class BenchConfig:
         Fits per timing (the median is reported).
     headline_size : int
         Image size of the headline timings (0 = skip them).
+    headline_lmax : int
+        Band limit ``l = p`` of the headline timings (8 in the full benchmark).
     """
 
     sphere_size: int
@@ -93,10 +95,11 @@ class BenchConfig:
     scene_counts: tuple[int, ...]
     runs: int
     headline_size: int
+    headline_lmax: int = 8
 
 
-QUICK = BenchConfig(sphere_size=32, lmax_values=(1, 2, 3), scene_counts=(1,), runs=1, headline_size=128)
-FULL = BenchConfig(sphere_size=96, lmax_values=tuple(range(1, 13)), scene_counts=(1, 12), runs=3, headline_size=512)
+QUICK = BenchConfig(sphere_size=32, lmax_values=(1, 2, 3), scene_counts=(1,), runs=1, headline_size=48, headline_lmax=3)
+FULL = BenchConfig(sphere_size=64, lmax_values=tuple(range(1, 13)), scene_counts=(1, 12), runs=3, headline_size=512)
 
 
 @dataclass
@@ -117,13 +120,15 @@ class BenchRow:
 class BenchResult:
     """All rows, the headline timings and the lighting used.
 
-    ``headline`` maps a scene count to the median seconds of the ``full`` l = p = 8
-    joint fit of ``headline_size`` x ``headline_size`` three-channel images.
+    ``headline`` maps a scene count to the median seconds of the ``full``
+    ``l = p = headline_lmax`` joint fit of ``headline_size`` x ``headline_size``
+    three-channel images.
     """
 
     rows: list[BenchRow]
     headline: dict[int, float] = field(default_factory=dict)
     headline_size: int = 0
+    headline_lmax: int = 8
     lighting: str = ""
 
 
@@ -231,8 +236,8 @@ def run_benchmark(
         big = [_resample(img, normals, config.sphere_size, big_normals) for img in images]
         for count in sorted({1, max_scenes}):
             scenes = [Scene(envs[k], big_normals, big[k], big_weights) for k in range(count)]
-            headline[count] = _timed(scenes, "full", "joint", 8, config.runs)[0]
-    return BenchResult(rows, headline, config.headline_size, lighting)
+            headline[count] = _timed(scenes, "full", "joint", config.headline_lmax, config.runs)[0]
+    return BenchResult(rows, headline, config.headline_size, config.headline_lmax, lighting)
 
 
 def format_table(rows: list[BenchRow]) -> str:
@@ -243,7 +248,7 @@ def format_table(rows: list[BenchRow]) -> str:
         rank = "-" if r.rank is None else str(r.rank)
         cond = "-" if r.condition is None else f"{r.condition:.2e}"
         lmax = "-" if r.model == "microfacet" else str(r.lmax)
-        lines.append(f"{r.model:<11} {r.solver:<9} {lmax:>3} {r.scenes:>6} {r.seconds:>8.3f} {r.relight_error:>11.4f} {rank:>5} {cond:>9}")
+        lines.append(f"{r.model:<11} {r.solver:<9} {lmax:>3} {r.scenes:>6} {r.seconds:>8.3f} {r.relight_error:>11.3e} {rank:>5} {cond:>9}")
     return "\n".join(lines)
 
 
@@ -256,7 +261,7 @@ def format_solver_comparison(rows: list[BenchRow]) -> str:
     head = f"{'model':<11} {'scenes':>6} {'l=p':>3} {'paper':>9} {'joint':>9} {'tikhonov':>9}  note"
     lines = [head, "-" * len(head)]
     for (model, scenes, lmax), errs in table.items():
-        cells = " ".join(f"{errs.get(s, float('nan')):>9.4f}" for s in SOLVERS)
+        cells = " ".join(f"{errs[s]:>9.3e}" if s in errs else f"{'-':>9}" for s in SOLVERS)
         best_new = min(errs.get("joint", math.inf), errs.get("tikhonov", math.inf))
         note = "paper better" if errs.get("paper", math.inf) < best_new * (1 - 1e-6) else ""
         lines.append(f"{model:<11} {scenes:>6} {lmax:>3} {cells}  {note}")
@@ -317,7 +322,7 @@ def rows_to_json(result: BenchResult) -> dict:
     """JSON-able form of a result."""
     return {
         "lighting": result.lighting,
-        "headline": {"size": result.headline_size, "model": "full", "lmax": 8, "pmax": 8, "solver": "joint",
+        "headline": {"size": result.headline_size, "model": "full", "lmax": result.headline_lmax, "pmax": result.headline_lmax, "solver": "joint",
                      "seconds_by_scenes": {str(k): v for k, v in result.headline.items()}},
         "rows": [asdict(r) for r in result.rows],
     }

@@ -7,11 +7,14 @@ Two stages:
    ball on a dark background and a dark ball on a bright one look alike and
    keeps clipped highlights from dominating.  Hough alone is good to 0.5-1 px.
 2. Refinement (hand-written, as OpenCV has no sub-pixel circle refinement):
-   along ``n_rays`` rays from the coarse centre the linear luminance profile
-   is sampled across the expected rim; each ray's edge is where the profile
-   crosses halfway between the levels just inside and just outside (the
-   50% area-coverage point of an anti-aliased edge), with rays of low
-   contrast (a stand under the ball, a background matching the rim) dropped.
+   along ``n_rays`` rays from the coarse centre the luminance profile is
+   sampled across the expected rim; each ray's rim is its outermost edge of
+   at least 10% contrast (reflections squeezed inside a chrome ball's rim and
+   clipped highlights make stronger edges further in), located where the
+   linear profile crosses halfway between the levels just inside and just
+   outside (the 50% area-coverage point of an anti-aliased edge); rays
+   without such an edge (a stand under the ball, a background matching the
+   rim) are dropped.
    A robust geometric circle fit (``scipy.optimize.least_squares`` with a
    soft-L1 loss, plus explicit outlier rejection) of the edge points gives
    the circle; the refinement is repeated around the new circle.
@@ -28,6 +31,7 @@ __all__ = ["detect_sphere", "refine_circle", "SphereNotFoundError"]
 
 _HOUGH_MAX_DIM = 480  # coarse search image size (pixels)
 _HOUGH_MIN_RADIUS = 12  # smallest radius worth searching after downscaling (pixels)
+_MIN_CONTRAST = 0.1  # smallest log-luminance step across 2 px that counts as the rim (10%)
 
 
 class SphereNotFoundError(ValueError):
@@ -76,38 +80,52 @@ def _coarse_circles(lum: np.ndarray, min_radius: float, max_radius: float) -> np
 
 
 def _edge_points(lum: np.ndarray, circle, n_rays: int, band: float):
-    """Sub-pixel edge points along rays across the rim of ``circle`` and their contrasts."""
+    """Sub-pixel rim points along rays across ``circle`` and their log contrasts.
+
+    On each ray the rim is the OUTERMOST step of at least ``_MIN_CONTRAST`` in
+    log luminance: the silhouette is the last edge before the background,
+    whereas the reflections squeezed inside a chrome ball's rim or a clipped
+    highlight make stronger edges further in.  Its sub-pixel position is where
+    the linear profile crosses halfway between the levels 2.5 px either side
+    (the 50% coverage point of an anti-aliased edge).
+    """
     from scipy.ndimage import map_coordinates
 
     cx, cy, r = circle
     phi = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
     step = 0.25
-    s = np.arange(-band, band + step / 2, step)  # radial offsets from the rim
+    s = np.arange(-band - 3.5, band + 3.5 + step / 2, step)  # radial offsets from the rim (+ level margins)
     rad = r + s
     xs = cx + np.cos(phi)[:, None] * rad[None, :]
     ys = cy + np.sin(phi)[:, None] * rad[None, :]
-    # map_coordinates indexes pixel centres at integers.
-    prof = map_coordinates(lum, [ys - 0.5, xs - 0.5], order=1, mode="nearest")
-    lo_k = int(round(2.5 / step))  # levels read 2.5 px either side of the crossing
-    pts, contrast = [], []
-    for i in range(n_rays):
+    prof = map_coordinates(lum, [ys - 0.5, xs - 0.5], order=1, mode="nearest")  # pixel centres at integers
+    eps = 0.01 * max(float(np.median(np.abs(prof))), 1e-30)
+    q = np.log(np.abs(prof) + eps)
+    one, lev = int(round(0.5 / step)), int(round(1.0 / step))
+    contrast = np.zeros_like(q)
+    contrast[:, one:-one] = q[:, 2 * one:] - q[:, :-2 * one]  # log step across +-0.5 px
+    mag = np.abs(contrast)
+    peak = np.zeros_like(mag, dtype=bool)
+    peak[:, 1:-1] = (mag[:, 1:-1] >= mag[:, :-2]) & (mag[:, 1:-1] > mag[:, 2:]) & (mag[:, 1:-1] > _MIN_CONTRAST)
+    lo_k, hi_k = lev, len(s) - lev - 1  # room for the level samples
+    peak[:, :lo_k] = False
+    peak[:, hi_k:] = False
+    pts, strength = [], []
+    for i in np.nonzero(peak.any(axis=1))[0]:
+        k = int(np.nonzero(peak[i])[0][-1])  # outermost
         p = prof[i]
-        grad = np.abs(np.diff(p))
-        k = int(np.argmax(grad[lo_k:len(grad) - lo_k])) + lo_k
-        inside, outside = p[max(k - lo_k, 0)], p[min(k + 1 + lo_k, len(p) - 1)]
+        inside, outside = p[k - lev], p[k + lev]
         half = 0.5 * (inside + outside)
-        # Nearest crossing of the half level around the steepest step.
-        sign = np.sign(p - half)
-        cross = np.nonzero(sign[:-1] != sign[1:])[0]
-        if not cross.size or inside == outside:
+        seg = p[k - lev:k + lev + 1] - half
+        cross = np.nonzero(np.sign(seg[:-1]) != np.sign(seg[1:]))[0]
+        if not cross.size:
             continue
-        j = cross[np.argmin(np.abs(cross - k))]
-        t = (half - p[j]) / (p[j + 1] - p[j]) if p[j + 1] != p[j] else 0.5
-        rr = rad[j] + t * step
+        j = int(cross[np.argmin(np.abs(cross - lev))])
+        t = seg[j] / (seg[j] - seg[j + 1])
+        rr = rad[k - lev + j] + t * step
         pts.append((cx + np.cos(phi[i]) * rr, cy + np.sin(phi[i]) * rr))
-        contrast.append(abs(np.log(max(inside, 1e-12) / max(outside, 1e-12))) if min(inside, outside) > 0
-                        else abs(inside - outside) / max(abs(inside), abs(outside)))
-    return np.asarray(pts).reshape(-1, 2), np.asarray(contrast)
+        strength.append(mag[i, k])
+    return np.asarray(pts).reshape(-1, 2), np.asarray(strength)
 
 
 def _fit_circle(pts: np.ndarray, start) -> np.ndarray:

@@ -36,8 +36,9 @@ nominal ratio by more than ``ratio_tolerance``, the re-estimated times are
 used, anchored so that the median frame keeps its nominal time (one wrong
 nominal time does not shift the others).
 
-The per-pixel loop is one fused numba kernel (frames read in their own
-dtype, no stacked copy), parallel over pixels.
+The per-pixel loop is one fused numba kernel, parallel over blocks of
+pixels: each block of every frame is gathered once (frames read in their own
+dtype, no stacked copy of the bracket), then merged per pixel and channel.
 """
 
 from __future__ import annotations
@@ -116,72 +117,87 @@ class MergeResult:
         return float(np.mean(self.flags == FLAG_SATURATED))
 
 
+_BLOCK = 2048  # pixels per block of the merge kernel
+
+
 @nb.njit(parallel=True, cache=True)  # no fastmath: NaN (no data after alignment) must compare false
 def _merge_kernel(frames, times, inv_sat, lo, hi, optimal, inv_well, read_var, iterations,
                   out_rad, out_var, out_flag):  # pragma: no cover - compiled
     npix, nch = out_rad.shape
     nfr = len(frames)
     mid = 0.5 * (lo + hi)
-    for p in nb.prange(npix):
-        for c in range(nch):
-            # Debevec hat estimate (the result for "debevec", the starting point for "optimal").
-            num = 0.0
-            den = 0.0
-            for k in range(nfr):
-                z = frames[k][p, c] * inv_sat
-                if z > lo and z < hi:
-                    w = z - lo if z <= mid else hi - z
-                    num += w * z / times[k]
-                    den += w
-            if den <= 0.0:
-                # No usable sample: longest unsaturated frame (dark), else shortest (saturated).
-                best = -1
+    inv_t = 1.0 / times
+    nblocks = (npix + _BLOCK - 1) // _BLOCK
+    for b in nb.prange(nblocks):
+        p0 = b * _BLOCK
+        p1 = min(p0 + _BLOCK, npix)
+        # Gather the block of every frame once, normalised (contiguous reads, one tuple dispatch per frame).
+        zb = np.empty((nfr, p1 - p0, nch), np.float64)
+        for k in range(nfr):
+            fk = frames[k]
+            for p in range(p0, p1):
+                for c in range(nch):
+                    zb[k, p - p0, c] = fk[p, c] * inv_sat
+        for q in range(p1 - p0):
+            p = p0 + q
+            for c in range(nch):
+                # Debevec hat estimate (the result for "debevec", the starting point for "optimal").
+                num = 0.0
+                den = 0.0
                 for k in range(nfr):
-                    z = frames[k][p, c] * inv_sat
-                    if z == z and z < hi and (best < 0 or times[k] > times[best]):
-                        best = k
-                if best >= 0:
-                    x = max(frames[best][p, c] * inv_sat, 0.0) / times[best]
-                    out_rad[p, c] = x
-                    out_var[p, c] = (x * times[best] * inv_well + read_var) / (times[best] * times[best])
-                    out_flag[p, c] = 1
-                else:
-                    for k in range(nfr):
-                        if best < 0 or times[k] < times[best]:
-                            best = k
-                    x = frames[best][p, c] * inv_sat / times[best]
-                    out_rad[p, c] = x
-                    out_var[p, c] = x * x
-                    out_flag[p, c] = 2
-                continue
-            x = num / den
-            if optimal:
-                for _ in range(iterations):
-                    num = 0.0
-                    den = 0.0
-                    xs = max(x, 0.0)
-                    for k in range(nfr):
-                        z = frames[k][p, c] * inv_sat
-                        if z > lo and z < hi:
-                            t = times[k]
-                            w = t * t / (xs * t * inv_well + read_var)
-                            num += w * z / t
-                            den += w
-                    x = num / den
-                var = 1.0 / den
-            else:
-                xs = max(x, 0.0)
-                acc = 0.0
-                for k in range(nfr):
-                    z = frames[k][p, c] * inv_sat
+                    z = zb[k, q, c]
                     if z > lo and z < hi:
-                        t = times[k]
                         w = z - lo if z <= mid else hi - z
-                        acc += w * w * (xs * t * inv_well + read_var) / (t * t)
-                var = acc / (den * den)
-            out_rad[p, c] = x
-            out_var[p, c] = var
-            out_flag[p, c] = 0
+                        num += w * z * inv_t[k]
+                        den += w
+                if den <= 0.0:
+                    # No usable sample: longest unsaturated frame (dark), else shortest (saturated).
+                    best = -1
+                    for k in range(nfr):
+                        z = zb[k, q, c]
+                        if z == z and z < hi and (best < 0 or times[k] > times[best]):
+                            best = k
+                    if best >= 0:
+                        x = max(zb[best, q, c], 0.0) * inv_t[best]
+                        out_rad[p, c] = x
+                        out_var[p, c] = (x * times[best] * inv_well + read_var) * inv_t[best] * inv_t[best]
+                        out_flag[p, c] = 1
+                    else:
+                        for k in range(nfr):
+                            if best < 0 or times[k] < times[best]:
+                                best = k
+                        x = zb[best, q, c] * inv_t[best]
+                        out_rad[p, c] = x
+                        out_var[p, c] = x * x
+                        out_flag[p, c] = 2
+                    continue
+                x = num / den
+                if optimal:
+                    for _ in range(iterations):
+                        num = 0.0
+                        den = 0.0
+                        xs = max(x, 0.0) * inv_well
+                        for k in range(nfr):
+                            z = zb[k, q, c]
+                            if z > lo and z < hi:
+                                # u = t / Var(z_k) = w_k / t_k, Var(z_k) = x t / well + read_var, w_k = t^2 / Var
+                                u = 1.0 / (xs + read_var * inv_t[k])
+                                num += u * z  # sum w_k (z_k / t_k)
+                                den += u * times[k]  # sum w_k
+                        x = num / den
+                    var = 1.0 / den  # at the weights of the last iteration
+                else:
+                    xs = max(x, 0.0)
+                    acc = 0.0
+                    for k in range(nfr):
+                        z = zb[k, q, c]
+                        if z > lo and z < hi:
+                            w = z - lo if z <= mid else hi - z
+                            acc += w * w * (xs * times[k] * inv_well + read_var) * inv_t[k] * inv_t[k]
+                    var = acc / (den * den)
+                out_rad[p, c] = x
+                out_var[p, c] = var
+                out_flag[p, c] = 0
 
 
 def _validate(frames, times, names) -> tuple[list[np.ndarray], np.ndarray, list[str]]:

@@ -277,7 +277,7 @@ def unwrap_probe(
     dirs, solid, inside = envmap.mirrorball_directions(image.shape[:2], circle)
     radiance = calibrate_probe(image, circle, albedo=albedo, fresnel=fresnel, albedo_angle_deg=albedo_angle_deg)
     dx, dy = _ball_offsets(image.shape, circle)
-    valid = inside & (np.hypot(dx, dy) <= rim)
+    valid = inside & (np.hypot(dx, dy) <= rim) if rim < 1 else inside.copy()
     if camera_mask_deg > 0:
         valid &= dirs[..., 2] < np.cos(np.radians(camera_mask_deg))
     if mask is not None:

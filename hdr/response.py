@@ -119,7 +119,10 @@ def recover_response(
     for c in range(nch):
         z = np.stack([np.clip(f.reshape(-1, nch)[pix, c], 0, 1) for f in frames], axis=1)  # (N, K)
         zi = np.rint(z * (levels - 1)).astype(int)
+        zi = zi[weight[zi].sum(axis=1) > 0]  # pixels black or saturated in every frame carry no information
         n, k = zi.shape
+        if n * (k - 1) <= levels // 4:
+            raise ValueError(f"response: only {n} sampled pixels are neither black nor saturated in every frame")
         rows_d = np.arange(n * k)
         w = weight[zi].ravel()
         # Data rows: w (g[z] - lnE_i) = w ln t_j.  Unknowns: g (levels) then lnE (n).

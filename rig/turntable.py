@@ -231,7 +231,13 @@ class GrblTurntable:
                 if self._status().state == "Alarm":
                     self._soft_reset()  # a hard alarm ignores everything until reset
                 self._forget()
-                self._command("$H", timeout=self.homing_timeout_s)
+                for _ in range(self.retries + 1):
+                    replies = self._command("$H", timeout=self.homing_timeout_s)
+                    # line noise can turn "$H" into "$X" (unlock, no homing): GRBL then says "Unlocked"
+                    if not any("Unlocked" in r.text for r in replies):
+                        break
+                else:
+                    raise DeviceRefused("the controller kept unlocking instead of homing: check the serial line")
                 if not self._confirm_idle_at(0.0, time.monotonic() + self.reply_timeout_s * (self.retries + 1)):
                     raise DeviceRefused("the controller did not report Idle at 0 after homing")
             except BaseException:

@@ -28,7 +28,7 @@ def test_bench_quick_cli(tmp_path):
     for l in QUICK.lmax_values:
         assert re.search(rf"^full\+prior\s+tikhonov\s+{l}\s", table, re.M)
     assert re.search(r"^microfacet\s+-\s+-\s+1\s", table, re.M)
-    assert "Headline timings" in text and re.search(r"full l=p=8, joint solver,\s+1 scene", text)
+    assert "Headline timings" in text and re.search(rf"full l=p={QUICK.headline_lmax}, joint solver,\s+1 scene", text)
     assert (out / "bench.png").stat().st_size > 10_000
     data = json.loads((out / "bench.json").read_text())
     assert len(data["rows"]) == 3 * 3 * len(QUICK.lmax_values) + len(QUICK.lmax_values) + 1

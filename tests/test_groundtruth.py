@@ -117,7 +117,7 @@ def test_real_probe_lambertian_matches_sh_irradiance(real_probes):
     band = np.concatenate([[l] * (2 * l + 1) for l in range(lmax + 1)])
     expected = 0.8 / math.pi * sh_eval(normals, lmax) @ (a_l[band, None] * coeffs)
     rel = np.sqrt(np.mean((got - expected) ** 2) / np.mean(expected**2))
-    assert rel < 5e-3
+    assert rel < 1e-3  # measured 1.7e-4 (64x32 map, lmax 24)
 
 
 def test_ggx_basis_recombines_to_the_ggx_render():

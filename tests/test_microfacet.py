@@ -98,3 +98,19 @@ def test_bad_input():
         fit_microfacet([Scene(env, n, np.full((1, 3), np.nan), np.ones(1))], progress=False)
     with pytest.raises(ValueError, match="at least one scene"):
         fit_microfacet([], progress=False)
+
+
+def test_black_image_and_single_bright_pixel_are_finite():
+    rng = np.random.default_rng(3)
+    dirs = rng.normal(size=(2000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    rad = np.zeros((2000, 3))
+    rad[np.argmax(dirs @ np.array([0.3, 0.4, 0.866]))] = 1e6  # one bright sample, 1e6 dynamic range vs black
+    env = Environment(dirs, rad, np.full(2000, 4 * math.pi / 2000))
+    normals = _sphere_normals(24)
+    truth = GGX(0.3, 0.04, 0.5)
+    for observed in (np.zeros((len(normals), 3)), render_groundtruth(truth, normals, env)):
+        brdf, report = fit_microfacet([Scene(env, normals, observed, np.ones(len(normals)))], env_rows=24, progress=False)
+        params = brdf.kernel_params()
+        assert np.all(np.isfinite(params)) and math.isfinite(report["relative_rms_residual"])
+    assert np.all(np.abs(brdf.predict(env, normals) - observed) <= 0.05 * observed.max())

@@ -42,31 +42,73 @@ def rotation_y(deg):
     return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
 
 
-def render_ball(env, shape, circle, *, reflectance=None, ss=2):
-    """Orthographic chrome ball seen along -z, each pixel the mean of ss x ss sub-samples.
+def lookup_nearest(env, dirs):
+    """The map as piecewise constant (what its pixel-sum quadrature assumes): MATH.md's lat-long formulas."""
+    h, w = env.shape[:2]
+    lam = np.arctan2(dirs[:, 0], dirs[:, 2])
+    phi = np.arcsin(np.clip(dirs[:, 1], -1, 1))
+    col = np.floor((0.5 - lam / (2 * np.pi)) * w).astype(int) % w
+    row = np.clip(np.floor((0.5 - phi / np.pi) * h).astype(int), 0, h - 1)
+    return env[row, col]
 
-    ``reflectance(n) -> (N,)`` or (N, C) multiplies the reflected radiance (albedo, blemishes, Fresnel).
-    Background 0.
+
+def render_ball(env, shape, circle, *, reflectance=None, ss=3, background=0.0):
+    """Orthographic chrome ball seen along -z, each pixel the mean of ss x ss sub-samples of the map.
+
+    ``reflectance(n) -> (N,)`` or (N, C) multiplies the reflected radiance (albedo, blemishes, Fresnel);
+    sub-samples outside the ball see ``background``.
     """
     h, w = shape
     cx, cy, r = circle
     out = np.zeros((h, w, env.shape[2]))
     off = (np.arange(ss) + 0.5) / ss - 0.5
+    yy, xx = np.mgrid[0:h, 0:w]
     for oy in off:
         for ox in off:
-            yy, xx = np.mgrid[0:h, 0:w]
             dx = (xx + 0.5 + ox - cx) / r
             dy = (cy - (yy + 0.5 + oy)) / r
             inside = dx * dx + dy * dy < 1
             n = np.stack([dx[inside], dy[inside], np.sqrt(1 - dx[inside] ** 2 - dy[inside] ** 2)], axis=-1)
             wdir = 2 * n[:, 2:3] * n - np.array([0.0, 0.0, 1.0])
-            wdir /= np.linalg.norm(wdir, axis=1, keepdims=True)
-            val = sample_latlong(env, wdir)
+            val = lookup_nearest(env, wdir / np.linalg.norm(wdir, axis=1, keepdims=True))
             if reflectance is not None:
                 refl = np.asarray(reflectance(n))
                 val = val * (refl[:, None] if refl.ndim == 1 else refl)
             out[inside] += val
+            out[~inside] += background
     return out / ss**2
+
+
+def splat_ball(env, shape, circle, sub=6):
+    """Energy-conserving forward render: every map pixel's radiance x solid angle lands on the ball pixel
+    where its direction is reflected (sub x sub sub-samples per map pixel, each weighted by its solid angle).
+
+    The map is piecewise constant, as its pixel-sum quadrature assumes, so the ball's integral of each map
+    pixel equals the map's, even for an unresolved sun one map pixel wide (real probes).
+    """
+    h, w = env.shape[:2]
+    cx, cy, r = circle
+    a = (np.arange(sub) + 0.5) / sub
+    u = ((np.arange(w)[:, None] + a[None, :]) / w).ravel()  # (W*sub,)
+    t = ((np.arange(h)[:, None] + a[None, :]) / h).ravel()  # (H*sub,)
+    lam = -2 * np.pi * (u - 0.5)
+    phi = -np.pi * (t - 0.5)
+    d_omega = (2 * np.pi / (w * sub)) * (np.pi / (h * sub)) * np.cos(phi)  # per sub-sample
+    lam, phi = np.meshgrid(lam, phi)
+    dirs = np.stack([np.sin(lam) * np.cos(phi), np.sin(phi), np.cos(lam) * np.cos(phi)], axis=-1).reshape(-1, 3)
+    weight = np.broadcast_to(d_omega[:, None], lam.shape).ravel()
+    value = np.repeat(np.repeat(env, sub, axis=0), sub, axis=1).reshape(-1, env.shape[2])
+    half = dirs + np.array([0.0, 0.0, 1.0])
+    norm = np.linalg.norm(half, axis=1)
+    keep = norm > 1e-9
+    n = half[keep] / norm[keep, None]
+    col = np.floor(cx + r * n[:, 0]).astype(int)
+    row = np.floor(cy - r * n[:, 1]).astype(int)
+    ok = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+    flat = row[ok] * shape[1] + col[ok]
+    out = np.stack([np.bincount(flat, weights=value[keep][ok, c] * weight[keep][ok], minlength=shape[0] * shape[1])
+                    for c in range(env.shape[2])], axis=-1)
+    return out.reshape(shape + (env.shape[2],)) / (4.0 / r**2)
 
 
 def band_energy(coeffs):
@@ -88,28 +130,30 @@ def env():
     return procedural_map()
 
 
-def _check_band_energies(env, radius, tol=0.01):
+def _check_band_energies(env, radius, render, tol=0.01):
     size = 2 * radius + 10
     circle = (size / 2 + 0.3, size / 2 - 0.2, radius)
-    ball = render_ball(env, (size, size), circle)
+    ball = render(env, (size, size), circle)
     s = unwrap_probe(ball, circle)
     assert s.unseen_cone_deg == pytest.approx(unseen_cone_deg(0.97)) and 28 < s.unseen_cone_deg < 28.2
     ours = band_energy(samples_projection(s))
     truth = band_energy(map_projection_outside_cone(env, s.unseen_cone_deg))
     rel = np.abs(ours / truth - 1)
+    print("relative band energy error, l = 0..8:", np.round(rel, 4))
     assert rel.max() < tol, rel
     return rel
 
 
-def test_unwrapped_ball_matches_map_band_energies_within_1_percent(env):
-    _check_band_energies(env, 150)
+@pytest.mark.parametrize("render", [render_ball, splat_ball], ids=["camera-render", "energy-splat"])
+def test_unwrapped_ball_matches_map_band_energies_within_1_percent(env, render):
+    _check_band_energies(env, 150, render)
 
 
 def test_real_probes_unwrap_within_1_percent(real_probes):
     from hdr.exr import read_image
 
-    for path in real_probes[:2]:
-        _check_band_energies(read_image(path).astype(np.float64), 150)
+    for path in real_probes:
+        _check_band_energies(read_image(path).astype(np.float64), 150, splat_ball)
 
 
 def test_solid_angles_and_masks():
@@ -154,10 +198,10 @@ def test_albedo_ratio_method_and_fresnel_calibration(env):
     plain = unwrap_probe(ball, circle, albedo=albedo)
     cal = unwrap_probe(ball, circle, albedo=albedo, fresnel=CHROME_IOR)
     truth = sample_latlong(env, cal.dirs)
-    rim_zone = cal.valid & (cal.dirs[:, 2] < -0.5)  # grazing on the ball: Fresnel matters
+    rim_zone = cal.valid & (cal.dirs[:, 2] < -0.7)  # grazing on the ball (> 67 deg): Fresnel matters
     err_cal = np.median(np.abs(cal.radiance[rim_zone] / truth[rim_zone] - 1))
     err_plain = np.median(np.abs(plain.radiance[rim_zone] / truth[rim_zone] - 1))
-    assert err_cal < 0.01 and err_plain > 0.1, (err_cal, err_plain)
+    assert err_cal < 0.01 and err_plain > 5 * err_cal, (err_cal, err_plain)
 
 
 def test_conductor_fresnel_closed_forms():
@@ -183,13 +227,13 @@ def test_rotation_averaging_removes_blemishes(env):
         return np.where(hit, 0.15, 1.0) * 0.7
 
     # Pick the cap size so blemishes cover 10% of the visible disc at rotation 0.
-    yy, xx = np.mgrid[0:400, 0:400]
-    dx, dy = (xx - 199.5) / 200, (199.5 - yy) / 200
+    from scipy.optimize import brentq
+
+    yy, xx = np.mgrid[0:200, 0:200]
+    dx, dy = (xx - 99.5) / 100, (99.5 - yy) / 100
     inside = dx * dx + dy * dy < 1
     n_test = np.stack([dx[inside], dy[inside], np.sqrt(1 - dx[inside] ** 2 - dy[inside] ** 2)], axis=-1)
-    caps = np.radians(np.linspace(2, 30, 300))
-    cover = [np.mean(blemish_factor(n_test, c) < 0.5) for c in caps]
-    cap = caps[np.searchsorted(cover, 0.10)]
+    cap = brentq(lambda c: np.mean(blemish_factor(n_test, c) < 0.5) - 0.10, np.radians(1), np.radians(40), xtol=1e-4)
     assert abs(np.mean(blemish_factor(n_test, cap) < 0.5) - 0.10) < 0.01
 
     angles = np.arange(8) * 45.0
@@ -244,3 +288,64 @@ def test_bad_probe_input_is_a_clear_error():
         average_rotations([img, np.ones((90, 100, 3))], [(50, 50, 30)] * 2)
     with pytest.raises(ValueError, match="direct patch box .* outside"):
         albedo_from_patches(img, (90, 90, 120, 95), (10, 10, 20, 20))
+
+
+def test_chrome_ball_detected_in_front_of_a_backdrop(env):
+    """A chrome ball (textured reflection, rim squeezing bright windows) in front of a grey backdrop."""
+    from hdr.detect import detect_sphere
+
+    size, circle = 260, (131.3, 127.6, 110.2)
+    ball = render_ball(env, (size, size), circle, reflectance=lambda n: np.full(len(n), 0.7), background=0.3)
+    found = detect_sphere(ball)
+    assert np.abs(np.subtract(found, circle)).max() <= 0.25, found
+
+
+def test_probe_cli_writes_latlong_with_unseen_mask(env, tmp_path, capsys):
+    from capture.cli import main
+    from hdr.exr import read_exr, write_exr
+
+    size, radius = 300, 130
+    circle = (151.2, 148.7, radius)
+    small_env = procedural_map(32, 64)
+    rng = np.random.default_rng(5)
+    files = []
+    for k, a in enumerate((0, 120, 240)):  # three rotations of a ball with one dark blemish
+        rot = rotation_y(-a)
+        blemish = lambda n, rot=rot: np.where((n @ rot.T) @ np.array([0.6, 0.3, 0.74]) > 0.97, 0.1, 0.7)  # noqa: E731
+        files.append(tmp_path / f"probe{k}.exr")
+        write_exr(files[-1], render_ball(small_env, (size, size), circle, reflectance=blemish, background=0.3)
+                  * (1 + 0.002 * rng.standard_normal((size, size, 3))))
+    out = tmp_path / "env.exr"
+    assert main(["probe", *map(str, files), "--albedo", "0.7", "--width", "64", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "3 rotations combined" in printed and "unseen: cone of 28.1 deg" in printed
+    latlong, extra, attrs = read_exr(out)
+    assert latlong.shape == (32, 64, 3) and attrs["unseen_cone_deg"] == pytest.approx(unseen_cone_deg(0.97))
+    assert np.abs(np.subtract(attrs["circle_px"], circle)).max() < 0.25  # detected in each image
+    seen = extra["mask"] > 0.5
+    dirs, _ = latlong_directions(32, 64)
+    assert np.array_equal(seen, dirs[..., 2] > -np.cos(np.radians(attrs["unseen_cone_deg"])))
+    assert np.all(latlong[~seen] == 0)
+    front = seen & (dirs[..., 2] > 0)
+    assert np.median(np.abs(latlong[front] / small_env[front] - 1)) < 0.02
+    # --circle overrides detection; a circle partly outside the frame is a clear error, nothing written.
+    assert main(["probe", str(files[0]), "--circle", "151.2,148.7,130", "--width", "64", "-o", str(out)]) == 0
+    before = out.read_bytes()
+    assert main(["probe", str(files[0]), "--circle", "100,148.7,130", "--width", "64", "-o", str(out)]) == 2
+    assert "probe circle (100.00, 148.70, 130.00) extends outside the 300x300 image" in capsys.readouterr().err
+    assert out.read_bytes() == before
+
+
+def test_probe_cli_no_sphere_and_bad_files(tmp_path, capsys):
+    from capture.cli import main
+    from hdr.exr import write_exr
+
+    flat = tmp_path / "flat.exr"
+    write_exr(flat, np.full((120, 160, 3), 0.5, np.float32))
+    assert main(["probe", str(flat), "-o", str(tmp_path / "e.exr")]) == 2
+    assert "flat.exr: no sphere found" in capsys.readouterr().err
+    broken = tmp_path / "broken.exr"
+    broken.write_bytes(flat.read_bytes()[:200])
+    assert main(["probe", str(broken), "--circle", "80,60,50", "-o", str(tmp_path / "e.exr")]) == 2
+    assert "broken.exr" in capsys.readouterr().err
+    assert not (tmp_path / "e.exr").exists()

@@ -1,0 +1,157 @@
+"""``brdfrig probe``: chrome-ball probe image(s) to a calibrated lat-long environment EXR.
+
+Each image is a linear HDR (EXR or Radiance .hdr) of the chrome ball seen
+(nearly) orthographically.  The ball's circle is detected in every image
+unless ``--circle`` gives it (then used for all).  Several images taken at
+different turntable rotations of the ball are registered on their circles
+and combined by a robust per-pixel statistic, which removes the ball's
+blemishes.  The ball's albedo is given (``--albedo``) or measured by the
+ratio method (``--albedo-patches``: a diffuse patch seen directly and in the
+ball, as pixel boxes of the first image), optionally with a Fresnel model for
+chrome (``--fresnel``).
+
+The output is a lat-long map in OpenEXR's LatLongMap convention (MATH.md);
+directions the ball does not show (the cone behind the ball, the camera's
+reflection if masked) have zero radiance and ``mask = 0``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _floats(n_allowed: tuple[int, ...], what: str):
+    def parse(text: str) -> list[float]:
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) not in n_allowed:
+            raise argparse.ArgumentTypeError(f"{what} must be {' or '.join(map(str, n_allowed))} comma-separated "
+                                             f"numbers, got {text!r}")
+        return values
+    return parse
+
+
+def _patches(text: str) -> tuple[list[float], list[float]]:
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"--albedo-patches must be DIRECT:REFLECTED pixel boxes "
+                                         f"x0,y0,x1,y1:x0,y0,x1,y1, got {text!r}")
+    box = _floats((4,), "an --albedo-patches box")
+    return box(parts[0]), box(parts[1])
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "probe",
+        help="chrome-ball image(s) to a calibrated lat-long environment EXR (unseen directions masked)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("images", nargs="+", type=Path, metavar="PROBE",
+                   help="probe image(s) (.exr/.hdr); several = captures at different ball rotations")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="ENV.exr", help="output lat-long EXR")
+    p.add_argument("--circle", type=_floats((3,), "--circle"), metavar="CX,CY,R",
+                   help="ball circle in pixels (MATH.md image coordinates); default: detected per image")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--albedo", type=_floats((1, 3), "--albedo"), metavar="A[,G,B]",
+                       help="ball reflectance, one value or one per channel (default: 1, uncalibrated)")
+    group.add_argument("--albedo-patches", type=_patches, metavar="X0,Y0,X1,Y1:X0,Y0,X1,Y1",
+                       help="pixel boxes of a diffuse patch seen directly and reflected in the ball (ratio method)")
+    p.add_argument("--fresnel", action="store_true", help="angle-dependent chrome reflectance (conductor Fresnel)")
+    p.add_argument("--rim", type=float, default=None, metavar="F", help="drop ball pixels beyond F of the radius "
+                   "(default 0.97)")
+    p.add_argument("--camera-mask", type=float, default=0.0, metavar="DEG",
+                   help="drop the cone of DEG degrees around the view direction (camera reflection; default 0)")
+    p.add_argument("--width", type=int, default=512, metavar="W", help="lat-long width (height W/2; default 512)")
+    p.add_argument("--statistic", choices=("median", "trimmed"), default="median",
+                   help="per-pixel statistic over rotations (default: %(default)s)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from hdr.exr import read_image, write_exr
+    from hdr.probe import (
+        CHROME_IOR,
+        DEFAULT_RIM,
+        albedo_from_patches,
+        average_rotations,
+        check_circle_in_frame,
+        probe_to_latlong,
+        unseen_cone_deg,
+    )
+
+    if args.output.suffix.lower() != ".exr":
+        raise ValueError(f"output {args.output}: must be an .exr file")
+    if not args.output.parent.is_dir():
+        raise FileNotFoundError(f"output {args.output}: directory {args.output.parent} does not exist")
+    rim = DEFAULT_RIM if args.rim is None else args.rim
+    if not 0 < rim <= 1:
+        raise ValueError(f"--rim must be in (0, 1], got {rim}")
+    if args.width < 8 or args.width % 2:
+        raise ValueError(f"--width must be an even integer >= 8, got {args.width}")
+
+    images = [read_image(path) for path in args.images]
+    for path, im in zip(args.images, images):
+        if im.shape != images[0].shape:
+            raise ValueError(f"{path} is {im.shape[1]}x{im.shape[0]}, {args.images[0]} is "
+                             f"{images[0].shape[1]}x{images[0].shape[0]}: probe captures must have one size")
+    circles = []
+    for path, im in zip(args.images, images):
+        if args.circle is not None:
+            circle = tuple(args.circle)
+        else:
+            from hdr.detect import SphereNotFoundError, detect_sphere
+
+            try:
+                circle = detect_sphere(im)
+            except SphereNotFoundError as exc:
+                raise ValueError(f"{path}: {exc} (give --circle cx,cy,r)") from None
+        circles.append(check_circle_in_frame(im.shape, circle, f"{path}: probe circle"))
+    if len(images) > 1:
+        image, circle = average_rotations(images, circles, statistic=args.statistic)
+    else:
+        image, circle = images[0], circles[0]
+
+    albedo, albedo_angle = None, 0.0
+    if args.albedo is not None:
+        albedo = np.broadcast_to(np.asarray(args.albedo, float), (image.shape[2],))
+    elif args.albedo_patches is not None:
+        direct, reflected = args.albedo_patches
+        albedo = albedo_from_patches(image, direct, reflected)
+        rx, ry = 0.5 * (reflected[0] + reflected[2]), 0.5 * (reflected[1] + reflected[3])
+        rho = np.hypot(rx - circle[0], ry - circle[1]) / circle[2]
+        if rho >= 1:
+            raise ValueError(f"--albedo-patches: the reflected box centre ({rx:.1f}, {ry:.1f}) is not on the ball "
+                             f"{tuple(round(c, 2) for c in circle)}")
+        albedo_angle = float(np.degrees(np.arcsin(rho)))
+    fresnel = CHROME_IOR if args.fresnel else None
+    latlong, seen = probe_to_latlong(image, circle, args.width, rim=rim, camera_mask_deg=args.camera_mask,
+                                     albedo=albedo, fresnel=fresnel, albedo_angle_deg=albedo_angle)
+    cone = unseen_cone_deg(rim)
+    attributes = {
+        "kind": "latlong_environment",
+        "source_files": [p.name for p in args.images],
+        "circles_px": [list(c) for c in circles],
+        "circle_px": list(circle),
+        "rim": rim,
+        "unseen_cone_deg": cone,
+        "camera_mask_deg": args.camera_mask,
+        "albedo": None if albedo is None else [float(a) for a in albedo],
+        "albedo_angle_deg": albedo_angle,
+        "fresnel_ior": None if fresnel is None else list(fresnel),
+        "rotation_statistic": args.statistic if len(images) > 1 else None,
+    }
+    write_exr(args.output, latlong, {"mask": seen.astype(np.float32)}, attributes, latlong=True)
+    unseen = 1 - float(np.mean(seen))
+    print(f"probe: circle ({circle[0]:.2f}, {circle[1]:.2f}, {circle[2]:.2f}) px"
+          + (f", {len(images)} rotations combined ({args.statistic})" if len(images) > 1 else "")
+          + (f", albedo {', '.join(f'{a:.4g}' for a in albedo)}" if albedo is not None else ", albedo 1 (uncalibrated)"))
+    print(f"wrote {args.output} ({args.width}x{args.width // 2} lat-long); unseen: cone of {cone:.1f} deg around "
+          f"-z (behind the ball)" + (f" and {args.camera_mask:g} deg around +z (camera)" if args.camera_mask else "")
+          + f", {100 * unseen:.1f}% of the map's pixels, zero radiance and mask = 0")
+    return 0
