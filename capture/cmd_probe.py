@@ -148,9 +148,10 @@ def run(args) -> int:
     }
     write_exr(args.output, latlong, {"mask": seen.astype(np.float32)}, attributes, latlong=True)
     unseen = 1 - float(np.mean(seen))
+    albedo_text = "1 (uncalibrated)" if albedo is None else ", ".join(f"{a:.4g}" for a in albedo)
     print(f"probe: circle ({circle[0]:.2f}, {circle[1]:.2f}, {circle[2]:.2f}) px"
           + (f", {len(images)} rotations combined ({args.statistic})" if len(images) > 1 else "")
-          + (f", albedo {', '.join(f'{a:.4g}' for a in albedo)}" if albedo is not None else ", albedo 1 (uncalibrated)"))
+          + f", albedo {albedo_text}")
     print(f"wrote {args.output} ({args.width}x{args.width // 2} lat-long); unseen: cone of {cone:.1f} deg around "
           f"-z (behind the ball)" + (f" and {args.camera_mask:g} deg around +z (camera)" if args.camera_mask else "")
           + f", {100 * unseen:.1f}% of the map's pixels, zero radiance and mask = 0")

@@ -125,6 +125,32 @@ def check_complete(store: SessionStore, config: SessionConfig) -> None:
         )
 
 
+#: Frame value at or above which a demosaiced sample counts as clipped (``hdr.merge``'s default threshold).
+CLIP_LEVEL = 0.95
+
+
+def mark_clipped_neighbourhood(frame: np.ndarray, clip: float = CLIP_LEVEL) -> np.ndarray:
+    """Set every channel of the 3x3 neighbourhood of a clipped sample to full scale (1.0).
+
+    Bilinear demosaicing builds each pixel's missing colours from the 3x3
+    neighbouring Bayer sites: next to a clipped site, a channel can read well
+    below the clip level and still be wrong (a small bright light source
+    measured 0.53 in green at a pixel whose true green was 16x full scale).
+    Marking the neighbourhood as saturated makes ``hdr.merge.merge_bracket``
+    give those samples zero weight, so they come from shorter exposures.
+    Hand-written because it is a property of the demosaic step, not of the merge.
+    """
+    import cv2
+
+    clipped = (frame >= clip).any(axis=-1).astype(np.uint8)
+    if not clipped.any():
+        return frame
+    near = cv2.dilate(clipped, np.ones((3, 3), np.uint8)).astype(bool)
+    out = frame.copy()
+    out[near] = 1.0
+    return out
+
+
 def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool = True
                  ) -> dict[tuple[int, float], MergedFrame]:
     """Merge every (scene, angle) bracket, reusing ``DIR/cache`` entries keyed by content hash."""
@@ -135,7 +161,7 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
     from hdr.raw import read_exposure, read_frame
 
     cam = config.rig.camera
-    settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "version": MERGE_CACHE_VERSION}
+    settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "version": MERGE_CACHE_VERSION, "clip": CLIP_LEVEL}
     out = {}
     groups = _exposure_files(store)
     for (scene, angle), files in tqdm(groups.items(), desc="merge brackets", unit="frame", file=sys.stderr,
@@ -151,7 +177,7 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
                 continue
             except (ValueError, OSError, KeyError):
                 pass  # unreadable cache entry: merge again and replace it
-        frames = [read_frame(store.root / rel)[0] for rel, _ in files]
+        frames = [mark_clipped_neighbourhood(read_frame(store.root / rel)[0]) for rel, _ in files]
         times = [read_exposure(store.root / rel).time_s for rel, _ in files]
         merged = merge_bracket(frames, times, saturation=1.0, full_well=cam.full_well_e,
                                read_noise=cam.read_noise_e)

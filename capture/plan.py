@@ -43,6 +43,8 @@ __all__ = [
 
 #: Fraction of the white level an exposure may put the brightest pixel at (headroom for noise and vignetting).
 SATURATION_HEADROOM = 0.8
+#: Largest step between consecutive exposures of an auto bracket, in stops (keeps a well-exposed overlap).
+MAX_GAP_STOPS = 3.0
 #: Shortest and longest exposure time the planner proposes, seconds.
 MIN_TIME_S, MAX_TIME_S = 1.0 / 8000.0, 30.0
 
@@ -196,7 +198,7 @@ def electrons_for_snr(target_snr: float, read_noise_e: float) -> float:
 
 
 def meter_range(frame: np.ndarray, time_s: float, full_well_e: float, mask: np.ndarray | None = None,
-                *, low_pct: float = 0.5, high_pct: float = 99.95) -> tuple[float, float, float]:
+                *, low_pct: float = 0.5, high_pct: float = 100.0) -> tuple[float, float, float]:
     """Scene irradiance range from a metering frame, in electrons per second.
 
     Parameters
@@ -229,7 +231,8 @@ def meter_range(frame: np.ndarray, time_s: float, full_well_e: float, mask: np.n
 
 
 def auto_bracket(e_lo: float, e_hi: float, *, full_well_e: float, read_noise_e: float, target_snr: float,
-                 base_time_s: float, stop_step: float = 1.0, max_exposures: int = 9) -> tuple[float, ...]:
+                 base_time_s: float, stop_step: float = 1.0, max_exposures: int = 9,
+                 max_gap_stops: float = MAX_GAP_STOPS) -> tuple[float, ...]:
     """Exposure times covering irradiances ``[e_lo, e_hi]`` (electrons/s) at ``target_snr``, greedily.
 
     Times lie on the grid ``base_time_s * 2**(stop_step * k)`` (integer k) within
@@ -237,7 +240,10 @@ def auto_bracket(e_lo: float, e_hi: float, *, full_well_e: float, read_noise_e: 
     ``SATURATION_HEADROOM`` of full well; each next one is the longest whose
     saturation level reaches down to where the previous one stops reaching
     ``target_snr``; the bracket stops once ``e_lo`` reaches ``target_snr`` (or at
-    ``max_exposures``).  Returns the times, shortest first.
+    ``max_exposures``).  Consecutive times are at most ``max_gap_stops`` apart, so
+    that neighbouring frames share well-exposed pixels (the merge checks the
+    exposure ratios on them: ``hdr.merge.estimate_times``).  Returns the times,
+    shortest first.
     """
     if not (e_hi >= e_lo > 0):
         raise ValueError(f"need 0 < e_lo <= e_hi, got e_lo={e_lo}, e_hi={e_hi}")
@@ -265,6 +271,6 @@ def auto_bracket(e_lo: float, e_hi: float, *, full_well_e: float, read_noise_e: 
         reach = s_min / t  # lowest irradiance this exposure records at target SNR
         if reach <= e_lo or k >= k_max or len(times) >= max_exposures:
             break
-        k_next = longest_below(s_max / reach)
+        k_next = min(longest_below(s_max / reach), k + max(1, math.floor(max_gap_stops / stop_step + 1e-9)))
         k = max(k_next, k + 1)
     return tuple(sorted(times))

@@ -36,7 +36,7 @@ RAW_SUBDIR = "raw"
 METER_STEP_STOPS = 4
 METER_MAX_SHOTS = 3
 #: Fraction of clipped pixels (in the probe/sample discs) above which metering steps down.
-METER_CLIP_FRACTION = 1e-4
+METER_CLIP_FRACTION = 0.0
 
 
 @contextlib.contextmanager

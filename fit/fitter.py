@@ -24,7 +24,7 @@ Pipeline (``../shared/docs/MATH.md``):
    :data:`HELDOUT_MAX` of them) never enter a fit; each candidate's weighted
    relative RMS error on them is reported.  ``auto`` keeps only candidates the
    identifiability analysis calls determined *and* whose pixel system reached
-   full rank, and picks the richest (order :data:`RICHNESS`) whose held-out
+   full rank (and, when any is, physically plausible: :func:`fit.models.plausibility`), and picks the richest (order :data:`RICHNESS`) whose held-out
    error is within :data:`SELECT_RTOL` of the best.
 """
 
@@ -35,11 +35,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from fit.brdf import FittedBRDF
 from fit.identifiability import THETA_MAX_DEG, analyse_lighting
-from fit.models import make_linear_brdf, project_to_full
+from fit.models import make_linear_brdf, plausibility, project_to_full
 from fit.scene import Scene
 from fit.shproject import project_environment
 from fit.solvers import SOLVERS, StreamedQR, solve
@@ -55,6 +56,9 @@ BLOCK_ROWS = 2048
 HELDOUT_FRACTION = 0.1
 HELDOUT_MAX = 2000
 SELECT_RTOL = 0.02
+COND_WARN = 1e6
+"""Condition number (column-equilibrated) above which the report warns that weakly determined
+directions may relight badly under other lighting."""
 
 
 @dataclass
@@ -249,6 +253,13 @@ def fit_brdf(
     -------
     FitResult
     """
+    # The blocks are small (a few thousand x a few hundred): multithreaded BLAS only
+    # adds contention (measured 15-30x slower QR on a loaded 2-core machine).
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed)
+
+
+def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed) -> FitResult:
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; expected one of {MODELS}")
     if solver not in SOLVERS:
@@ -258,7 +269,9 @@ def fit_brdf(
     t0 = time.perf_counter()
     pool, counts = _gather(scenes, max_theta_deg)
     coeffs = _lighting(scenes, lmax)
-    ident = analyse_lighting(coeffs, lmax, pmax, theta_max_deg=max_theta_deg)
+    wanted = RICHNESS if model == "auto" else (model,)
+    kinds = tuple(k for k in ("diffuse", "lobe", "full") if any(w.startswith(k) for w in wanted))
+    ident = analyse_lighting(coeffs, lmax, pmax, models=kinds, theta_max_deg=max_theta_deg)
     bands = tuple(ident.observable_bands)
     if not bands:
         raise ValueError("the lighting has no energy in any band: nothing can be measured")
@@ -268,7 +281,6 @@ def fit_brdf(
     n_held = min(int(HELDOUT_FRACTION * len(order)), HELDOUT_MAX)
     held, train = np.sort(order[:n_held]), order[n_held:]
 
-    wanted = RICHNESS if model == "auto" else (model,)
     candidates: dict[str, dict] = {}
     fitted: dict[str, FittedBRDF] = {}
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
@@ -322,8 +334,13 @@ def fit_brdf(
             det = True  # microfacet: a few parameters, identifiable from one image
         info["determined"] = bool(det and info["full_rank"])
 
+    for name, brdf in fitted.items():
+        candidates[name]["plausibility"] = plausibility(brdf)
+
     if model == "auto":
         ok = [m for m in RICHNESS if m in fitted and candidates[m]["determined"] and candidates[m]["heldout_relative_rms"] is not None]
+        # Prefer physically plausible fits (an implausible one extrapolates outside what the lighting measured).
+        ok = [m for m in ok if candidates[m]["plausibility"]["plausible"]] or ok
         if ok:
             best = min(candidates[m]["heldout_relative_rms"] for m in ok)
             chosen = [m for m in ok if candidates[m]["heldout_relative_rms"] <= best * (1 + SELECT_RTOL) + 1e-12][-1]
@@ -340,6 +357,28 @@ def fit_brdf(
         reason = "requested" + ("" if det else " (WARNING: not determined by these data; see identifiability)")
     if chosen not in fitted:
         raise ValueError(f"model {chosen!r} could not be fitted: {candidates[chosen]}")
+
+    warnings = []
+    if ident.unobservable_bands:
+        warnings.append(f"bands {ident.unobservable_bands} have no lighting energy: not measured, left out")
+    if counts["non_finite"]:
+        warnings.append(f"{counts['non_finite']} non-finite pixel(s) ignored")
+    info = candidates[chosen]
+    cond = max(info.get("condition_number") or [0.0])
+    if cond > COND_WARN:
+        warnings.append(
+            f"{chosen}: condition number {cond:.3g} > {COND_WARN:g}: directions the lighting barely excites "
+            "may relight badly under other lighting (try tikhonov, fewer bands or more scenes)"
+        )
+    if chosen in fitted and not info["plausibility"]["plausible"]:
+        warnings.append(
+            f"{chosen}: not physically plausible ({info['plausibility']}): the lighting did not constrain "
+            "the whole BRDF; relighting under other lighting is unreliable"
+        )
+    if "rows_used" in info and info["rows_used"] < 3 * info["unknowns"]:
+        warnings.append(f"{chosen}: only {info['rows_used']} pixels for {info['unknowns']} unknowns")
+    if not info.get("determined", False):
+        warnings.append(f"{chosen} is NOT determined by these data")
 
     report = {
         "chosen_model": chosen,
@@ -360,6 +399,7 @@ def fit_brdf(
         "identifiability": ident.to_dict(),
         "identifiability_summary": ident.summary(),
         "candidates": candidates,
+        "warnings": warnings,
         "seconds": time.perf_counter() - t0,
     }
     return FitResult(brdf=fitted[chosen], report=report)

@@ -29,7 +29,7 @@ from fit.sh import sh_eval, sh_index
 from fit.shproject import project_environment
 from fit.system import ModelSpec, design_block
 
-__all__ = ["LinearBRDF", "DiffuseBRDF", "LobeBRDF", "FullBRDF", "make_linear_brdf", "project_to_full"]
+__all__ = ["LinearBRDF", "DiffuseBRDF", "LobeBRDF", "FullBRDF", "make_linear_brdf", "project_to_full", "plausibility"]
 
 MIN_COS = 1e-6
 """``evaluate`` divides the transfer function by ``max(cos theta_i, MIN_COS)``."""
@@ -220,3 +220,40 @@ def project_to_full(brdf, spec: ModelSpec, n_theta: int = 48, n_phi: int = 96, n
             basis = y_out[:, sh_index(pc[cols], k)] * sw
             tau[cols] = np.linalg.lstsq(basis, t_lm[:, sh_index(l, k), :] * sw, rcond=None)[0]
     return tau
+
+
+def plausibility(brdf, n_theta: int = 24, n_phi: int = 48) -> dict:
+    """Physical sanity of a BRDF: directional albedo and sign of ``rho`` over the upper hemisphere.
+
+    For outgoing polar angles 0, 30 and 60 degrees, ``albedo = int rho cos dw_i``
+    and ``abs_ratio = int |rho| cos dw_i / |albedo|`` (1 for a non-negative BRDF;
+    truncated SH series ring a little above 1) by Gauss-Legendre quadrature in
+    ``cos theta_i`` (``n_theta`` nodes) times ``n_phi`` azimuths.  A fit that
+    extrapolates wildly (e.g. lighting that excites only part of the BRDF's
+    domain) shows up as ``abs_ratio`` >> 1 or an albedo outside [0, 1].
+
+    Returns
+    -------
+    dict
+        ``albedo_min``, ``albedo_max``, ``abs_ratio_max`` (over angles and channels) and
+        ``plausible`` (albedo in [-0.02, 1.1] and ``abs_ratio_max <= 1.5``).
+    """
+    x, wx = np.polynomial.legendre.leggauss(n_theta)
+    cos_i = 0.5 * (x + 1.0)
+    w = 0.5 * wx[:, None] * cos_i[:, None] * (2.0 * np.pi / n_phi)
+    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
+    albedo, ratio = [], []
+    for theta_o in np.radians([0.0, 30.0, 60.0]):
+        rho = np.asarray(brdf.evaluate(np.arccos(cos_i)[:, None], theta_o, phi[None, :]))  # (n_theta, n_phi, C)
+        a = np.einsum("tpc,tp->c", rho, np.broadcast_to(w, rho.shape[:2]))
+        a_abs = np.einsum("tpc,tp->c", np.abs(rho), np.broadcast_to(w, rho.shape[:2]))
+        albedo.append(a)
+        ratio.append(a_abs / np.maximum(np.abs(a), 1e-12))
+    albedo, ratio = np.array(albedo), np.array(ratio)
+    out = {
+        "albedo_min": float(albedo.min()),
+        "albedo_max": float(albedo.max()),
+        "abs_ratio_max": float(ratio.max()) if np.any(np.abs(albedo) > 1e-12) else 1.0,
+    }
+    out["plausible"] = bool(-0.02 <= out["albedo_min"] and out["albedo_max"] <= 1.1 and out["abs_ratio_max"] <= 1.5)
+    return out

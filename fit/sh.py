@@ -7,7 +7,9 @@ Convention (public contract, ``../shared/docs/MATH.md``), the one of sphericart:
 - polar axis +z, azimuth ``phi = atan2(y, x)``, NO Condon-Shortley phase:
   ``Y_l0 = K_l0 P_l(cos theta)``, and for ``m > 0``
   ``Y_lm = A_lm(theta) cos(m phi)``, ``Y_l,-m = A_lm(theta) sin(m phi)`` with the
-  same factor ``A_lm(theta) = Y_lm(theta, phi=0)``; equivalently ``Y_l,+-m = sqrt(2) (-1)^m Re/Im of scipy.special.sph_harm_y(l, m, theta, phi)``.
+  same factor ``A_lm(theta) = Y_lm(theta, phi=0)``; equivalently
+  ``Y_l,+-m = sqrt(2) (-1)^m Re/Im sph_harm_y(l, m, theta, phi)`` (scipy, which
+  includes the Condon-Shortley phase).  Band 1 is ``sqrt(3/4pi) (y, z, x)``.
 
 Evaluation: sphericart (a well-kept, fast C++ library) up to
 ``SPHERICART_MAX_LMAX``.  Measured with sphericart 2.0.4: it matches
@@ -16,7 +18,9 @@ returns wrong values (zeros instead of ~1.3) for the highest orders |m| near
 the equator.  Above ``SPHERICART_MAX_LMAX`` the values therefore come from
 scipy's normalised associated-Legendre recursion
 (``scipy.special.assoc_legendre_p_all(norm=True)``, stable to l = 200 and
-beyond, about 10x slower) times ``cos/sin(m phi)``.  Both paths are checked
+beyond, about 10x slower) times ``cos/sin(m phi)``.  Measured: the Gram matrix
+of ``sh_eval`` under Gauss-Legendre x uniform-phi quadrature equals the
+identity to 1.2e-13 at l = 60.  Both paths are checked
 against ``sph_harm_y`` in ``tests/test_sh.py``.
 """
 

@@ -31,7 +31,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from fit.rotation import rotate_coeffs
+from fit.rotation import wigner_d_real
 from fit.scene import Environment
 from fit.sh import check_lmax, check_unit_dirs, sh_degree, sh_eval, sh_index
 
@@ -207,6 +207,24 @@ def _latlong_tables(height: int, lmax: int) -> tuple[np.ndarray, np.ndarray]:
     return table, weights
 
 
+@lru_cache(maxsize=8)
+def _polar_frame_d(lmax: int) -> tuple[np.ndarray, ...]:
+    """``D_l(Q^T)`` for l = 0..lmax (``Q = _LATLONG_TO_POLAR``): polar-frame -> world coefficients."""
+    mats = tuple(wigner_d_real(_LATLONG_TO_POLAR.T[None], lmax))
+    for a in mats:
+        a.setflags(write=False)
+    return mats
+
+
+def _polar_to_world(coeffs: np.ndarray, lmax: int, inverse: bool = False) -> np.ndarray:
+    """Coefficients of ``w -> g(Q w)`` from those of ``g`` (``inverse``: the other way round)."""
+    out = np.empty_like(coeffs)
+    for l, d in enumerate(_polar_frame_d(lmax)):
+        s = slice(l * l, (l + 1) ** 2)
+        out[s] = (d[0].T if inverse else d[0]) @ coeffs[s]
+    return out
+
+
 def _check_latlong_size(height: int, width: int, lmax: int) -> None:
     if width <= 2 * lmax:
         raise ValueError(f"a lat-long map {width} pixels wide resolves bands up to {(width - 1) // 2}, not lmax={lmax}")
@@ -245,16 +263,16 @@ def project_latlong(image, lmax: int, window: str | None = None) -> np.ndarray:
     h, w, nc = img3.shape
     _check_latlong_size(h, w, lmax)
     table, fejer = _latlong_tables(h, lmax)
-    spec = np.fft.rfft(img3, axis=1)[:, : lmax + 1] * _longitude_phase(w, lmax)[None, :, None]
-    spec *= (2 * np.pi / w) * fejer[:, None, None]  # sum_j f e^{i m phi_j} times the quadrature weights
+    # channel-first so that each FFT runs over contiguous memory
+    spec = np.fft.rfft(np.ascontiguousarray(img3.transpose(2, 0, 1)), axis=-1)[..., : lmax + 1]
+    spec *= _longitude_phase(w, lmax) * ((2 * np.pi / w) * fejer[:, None])  # (C, H, m): weighted sums of f e^{i m phi_j}
     polar = np.empty(((lmax + 1) ** 2, nc))
     for m in range(lmax + 1):
         idx = sh_index(np.arange(m, lmax + 1), m)
-        polar[idx] = table[:, idx].T @ spec[:, m].real
+        polar[idx] = table[:, idx].T @ spec[:, :, m].real.T
         if m:
-            polar[idx - 2 * m] = table[:, idx].T @ spec[:, m].imag
-    out = rotate_coeffs(polar, _LATLONG_TO_POLAR.T[None])[0]
-    out = _apply_window(out, lmax, window)
+            polar[idx - 2 * m] = table[:, idx].T @ spec[:, :, m].imag.T
+    out = _apply_window(_polar_to_world(polar, lmax), lmax, window)
     return out[:, 0] if vector else out
 
 
@@ -277,7 +295,7 @@ def reconstruct_latlong(coeffs, height: int, width: int) -> np.ndarray:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name} must be a positive integer, got {v!r}")
     _check_latlong_size(height, width, lmax)
-    polar = rotate_coeffs(c, _LATLONG_TO_POLAR[None])[0]
+    polar = _polar_to_world(c, lmax, inverse=True)
     table, _ = _latlong_tables(height, lmax)
     spec = np.zeros((height, width // 2 + 1, c.shape[1]), dtype=complex)
     for m in range(lmax + 1):

@@ -172,7 +172,12 @@ def sample_latlong(image, dirs) -> np.ndarray:
 
 
 def _disc_quadrant_area(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Signed area of ``{(s, t): s^2 + t^2 < 1}`` within ``[0, x] x [0, y]`` (odd in x and y)."""
+    """Signed area of ``{(s, t): s^2 + t^2 < 1}`` within ``[0, x] x [0, y]`` (odd in x and y).
+
+    Closed form (a rectangle part plus the integral of the arc), written here
+    because neither OpenCV nor scikit-image give exact pixel/disc overlap areas
+    (only rasterised or anti-aliased discs).
+    """
     sx, sy = np.sign(x), np.sign(y)
     x, y = np.minimum(np.abs(x), 1.0), np.minimum(np.abs(y), 1.0)
     xs = np.sqrt(np.maximum(1.0 - y * y, 0.0))  # where the arc crosses t = y
@@ -286,8 +291,7 @@ def _angular_maps(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         off = 0.5 * g  # sub-pixel offsets in [-0.5, 0.5]
         x = cols[:, None, None] + 0.5 + off[None, :, None]
         y = rows[:, None, None] + 0.5 + off[None, None, :]
-        dx, dy = (x - radius) / radius, (radius - y) / radius
-        _, rho = direction(dx, dy)
+        rho = np.hypot((x - radius) / radius, (radius - y) / radius)
         return (density(rho) * (0.25 * wt[None, :, None] * wt[None, None, :])).sum(axis=(1, 2)) / radius**2
 
     rows, cols = np.mgrid[0:size, 0:size]

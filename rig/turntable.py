@@ -267,17 +267,28 @@ class GrblTurntable:
             start = self._position
             self._position = None
             try:
-                if self.backlash_deg > 0 and (start is None or target < start - self._tolerance
-                                              or not self._loaded_positive):
-                    margin = max(2.0 / self.steps_per_degree, 0.1 * self.backlash_deg)
-                    pre = self._quantise(target - self.backlash_deg - margin)
-                    self._move_verified(start, pre)
-                    start = pre
-                self._move_verified(start, target)
+                for _ in range(self.retries + 1):
+                    if self.backlash_deg > 0 and (
+                        start is None or target < start - self._tolerance or not self._loaded_positive
+                    ):
+                        margin = max(2.0 / self.steps_per_degree, 0.1 * self.backlash_deg)
+                        reached, start = self._move_verified(start, self._quantise(target - self.backlash_deg - margin))
+                        if not reached:
+                            continue
+                        self._loaded_positive = True
+                    reached, start = self._move_verified(start, target)
+                    if reached:
+                        break
+                    self._loaded_positive = False  # idle somewhere else: a corrupted command; re-approach
+                else:
+                    raise DeviceRefused(
+                        f"controller stays idle at {start:.4f} deg instead of {target:.4f} deg "
+                        f"after {self.retries} re-sends"
+                    )
             except BaseException:
                 self._halt_quietly()
                 raise
-            self._loaded_positive = True
+            self._loaded_positive = True  # the final segment went + (or the play is zero)
             self._position = target
             return target
 
@@ -413,39 +424,35 @@ class GrblTurntable:
         what = f"ALARM:{code} ({gp.describe_alarm(code)})" if code is not None else "alarm state"
         return DeviceRefused(f"turntable controller is in {what} while {doing}; home it again")
 
-    def _move_verified(self, start: float | None, target: float) -> None:
-        """Command an absolute move to ``target`` and return once the controller confirms it is idle there."""
+    def _move_verified(self, start: float | None, target: float) -> tuple[bool, float]:
+        """Command an absolute move to ``target`` and wait until the controller is idle.
+
+        Returns ``(True, target)`` once two status reports confirm it idle at the
+        target, or ``(False, where)`` when it went idle elsewhere (a command
+        corrupted on the line: the caller re-approaches).  Raises on timeout,
+        stall or alarm.
+        """
         command = f"G90 G0 X{target:.6f}"
         distance = abs(target - start) if start is not None else 360.0
-        nominal = distance / self.rate_deg_s
-        deadline = time.monotonic() + 2.0 * nominal + self.move_margin_s
+        allowed = 2.0 * distance / self.rate_deg_s + self.move_margin_s
+        deadline = time.monotonic() + allowed
         self._last_alarm = None
         self._command(command)
-        resends = 0
         last_pos, last_change = None, time.monotonic()
         while True:
             now = time.monotonic()
             if now > deadline:
                 raise DeviceTimeout(
-                    f"turntable did not reach {target:.4f} deg within {2.0 * nominal + self.move_margin_s:.2f} s "
-                    f"(last reported at {last_pos} deg)"
+                    f"turntable did not reach {target:.4f} deg within {allowed:.2f} s (last reported at {last_pos} deg)"
                 )
             status = self._status()
             if status.state == "Alarm":
                 raise self._alarm_error(f"moving to {target:.4f} deg")
             if status.state == "Idle":
-                if abs(status.mpos - target) <= self._tolerance:
-                    if self._confirm_idle_at(target, deadline):
-                        return
-                    continue
-                resends += 1
-                if resends > self.retries:
-                    raise DeviceRefused(
-                        f"controller stays idle at {status.mpos:.4f} deg instead of {target:.4f} deg "
-                        f"after {self.retries} re-sends"
-                    )
-                self._command(command)
-                last_change = time.monotonic()
+                if abs(status.mpos - target) > self._tolerance:
+                    return False, status.mpos
+                if self._confirm_idle_at(target, deadline):
+                    return True, target
                 continue
             if status.state in ("Run", "Jog", "Home"):
                 if status.mpos != last_pos:

@@ -105,7 +105,9 @@ def test_reestimation_recovers_a_3_percent_error_in_a_nominal_time():
 
 def test_consistent_times_are_kept():
     x = radiance_image(seed=6)
-    res = merge_bracket(bracket(x, seed=7), TIMES)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SaturationWarning)  # the brightest few pixels may clip at 1/64 s
+        res = merge_bracket(bracket(x, seed=7), TIMES)
     assert np.array_equal(res.times, TIMES) and np.array_equal(res.nominal_times, TIMES)
 
 
@@ -152,10 +154,12 @@ def test_alignment_recovers_integer_shifts():
     ref = 1  # median exposure
     for k, (dx, dy) in enumerate(shifts):
         assert tuple(found[k]) == (shifts[ref][0] - dx, shifts[ref][1] - dy)
-    res = merge_bracket(frames, [0.05, 0.1, 0.2], align=True)
+    with pytest.warns(SaturationWarning):  # the scene's brightest spots clip even at 0.05 s
+        res = merge_bracket(frames, [0.05, 0.1, 0.2], align=True)
     inner = (slice(8, -8), slice(8, -8))
     expect = np.roll(x, shifts[ref][::-1], axis=(0, 1))
-    assert np.median(np.abs(res.radiance[inner] / expect[inner] - 1)) < 1e-3
+    ok = res.flags[inner] == 0
+    assert np.median(np.abs(res.radiance[inner][ok] / expect[inner][ok] - 1)) < 1e-3
 
 
 def test_bad_brackets_are_clear_errors():

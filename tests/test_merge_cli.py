@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from capture.cli import main
 from hdr.dng import write_dng

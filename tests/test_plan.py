@@ -31,7 +31,7 @@ def test_electrons_for_snr_solves_the_noise_model():
 @pytest.mark.parametrize("e_lo, e_hi", [(2e4, 6e4), (1e3, 1e5), (50.0, 5e6), (30.0, 1e7)])
 def test_bracket_covers_the_range_and_every_exposure_is_needed(e_lo, e_hi):
     times = auto_bracket(e_lo, e_hi, full_well_e=FW, read_noise_e=RN, target_snr=SNR, base_time_s=1 / 60,
-                         max_exposures=20)
+                         max_exposures=20, max_gap_stops=10)
     grid = np.geomspace(e_lo, e_hi, 400)
     assert all(covered(e, times) for e in grid)
     for i in range(len(times)):  # minimal: dropping any exposure leaves a gap
@@ -40,6 +40,13 @@ def test_bracket_covers_the_range_and_every_exposure_is_needed(e_lo, e_hi):
     # on the 1-stop grid through 1/60 s
     for t in times:
         assert abs(math.log2(t * 60) - round(math.log2(t * 60))) < 1e-9
+
+
+def test_default_bracket_keeps_an_overlap_between_neighbours():
+    fw, rn = 20000.0, 5.0  # one exposure spans ~5.3 stops at SNR 20: the 3-stop cap binds
+    times = auto_bracket(30.0, 1e6, full_well_e=fw, read_noise_e=rn, target_snr=SNR, base_time_s=1 / 60)
+    gaps = np.diff(np.log2(times))
+    assert len(times) > 1 and np.all(gaps <= 3 + 1e-9) and np.all(gaps >= 1 - 1e-9)
 
 
 def test_low_contrast_needs_one_exposure_high_contrast_several():

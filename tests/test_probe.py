@@ -211,7 +211,8 @@ def test_conductor_fresnel_closed_forms():
     # A dielectric (k = 0) at Brewster's angle: rp = 0, R = rs^2 / 2.
     eta = 1.5
     tb = np.arctan(eta)
-    rs = ((np.cos(tb) - eta * np.cos(np.arcsin(np.sin(tb) / eta))) / (np.cos(tb) + eta * np.cos(np.arcsin(np.sin(tb) / eta))))
+    cos_t = np.cos(np.arcsin(np.sin(tb) / eta))  # refracted angle (Snell)
+    rs = (np.cos(tb) - eta * cos_t) / (np.cos(tb) + eta * cos_t)
     assert conductor_fresnel(np.cos(tb), (eta, 0.0)) == pytest.approx(rs**2 / 2, rel=1e-9)
 
 

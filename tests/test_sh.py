@@ -67,6 +67,23 @@ def test_matches_scipy_with_explicit_real_map(lmax):
     assert err <= 1e-12
 
 
+def test_matches_pyshtools_orthonormal_real_without_condon_shortley():
+    pyshtools = pytest.importorskip("pyshtools")
+    lmax = 30
+    d = random_dirs(20, seed=1)
+    theta, phi = np.arccos(d[:, 2]), np.arctan2(d[:, 1], d[:, 0])
+    y = sh_eval(d, lmax)
+    err = 0.0
+    for k in range(d.shape[0]):
+        # [0, l, m]: cos(m phi) terms -> our (l, m); [1, l, m]: sin(m phi) terms -> our (l, -m)
+        ref = pyshtools.expand.spharm(lmax, theta[k], phi[k], kind="real", degrees=False, normalization="ortho", csphase=1)
+        for l in range(lmax + 1):
+            m = np.arange(l + 1)
+            err = max(err, np.abs(y[k, sh_index(l, m)] - ref[0, l, : l + 1]).max())
+            err = max(err, np.abs(y[k, sh_index(l, -m[1:])] - ref[1, l, 1 : l + 1]).max())
+    assert err <= 1e-12
+
+
 def test_phase_convention_low_order_closed_forms():
     d = random_dirs(50)
     x, y, z = d.T

@@ -140,3 +140,15 @@ def test_bad_coeffs_and_normals():
         local_lighting(np.ones((4, 1)), [[0, 0, 2.0]])
     with pytest.raises(ValueError, match="lmax"):
         wigner_d_real(np.eye(3)[None], 201)
+
+
+def test_large_batches_split_over_threads_give_the_same_result():
+    from fit import rotation
+
+    lmax = 10
+    c = np.random.default_rng(11).normal(size=((lmax + 1) ** 2, 1))
+    k = rotation._PARALLEL_MIN_WORK // c.size + 50  # just above the threshold for two workers
+    r = random_rotations(k, seed=12)
+    big = rotate_coeffs(c, r)
+    picks = [0, k // 2 - 1, k // 2, k - 1]  # both sides of the split
+    np.testing.assert_allclose(big[picks], rotate_coeffs(c, r[picks]), rtol=0, atol=1e-14)

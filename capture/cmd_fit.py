@@ -1,0 +1,154 @@
+"""``brdfrig fit``: fit a BRDF to HDR images of a sample sphere under measured lighting.
+
+Each ``--scene ENV IMAGE`` pairs a lat-long environment map (MATH.md
+convention, EXR or Radiance .hdr, any resolution) with an HDR image of the
+sample sphere taken under it; ``--probe-scene PROBE IMAGE`` takes the lighting
+from a mirror-ball image instead (circle auto-detected, unwrapped by
+``hdr.probe``).  The sample sphere's circle is auto-detected in every IMAGE
+unless ``--circle cx,cy,r`` is given.  Pixels within ``hdr.sphere``'s default
+limb margin get weight 0, and the fitter ignores normals beyond 80 degrees from
+the view (``fit.fitter``).  Prints the identifiability report and the fit
+statistics; writes the versioned BRDF file (``fit.brdffile``) atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+MODEL_CHOICES = ("auto", "diffuse", "lobe", "microfacet", "full", "full+prior")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "fit",
+        help="fit a BRDF to sphere images under lat-long or mirror-ball lighting",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--scene", nargs=2, action="append", default=[], metavar=("ENV", "IMAGE"),
+                   help="lat-long lighting map and the sphere image taken under it (repeatable)")
+    p.add_argument("--probe-scene", nargs=2, action="append", default=[], metavar=("PROBE", "IMAGE"),
+                   help="mirror-ball image of the lighting and the sphere image taken under it (repeatable)")
+    p.add_argument("--model", choices=MODEL_CHOICES, default="auto", help="BRDF model (default: %(default)s)")
+    p.add_argument("--lmax", type=int, default=8, help="lighting band limit (default: %(default)s)")
+    p.add_argument("--pmax", type=int, default=8, help="outgoing band limit of the full model (default: %(default)s)")
+    p.add_argument("--solver", choices=("paper", "joint", "tikhonov"), default="joint", help="least-squares solver (default: %(default)s)")
+    p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("-o", "--output", required=True, help="output BRDF file (JSON)")
+    p.set_defaults(func=run)
+
+
+def parse_circle(text: str) -> tuple[float, float, float]:
+    """``'cx,cy,r'`` -> floats; ValueError naming ``--circle`` otherwise."""
+    try:
+        cx, cy, r = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--circle must be 'cx,cy,r' (three numbers), got {text!r}") from None
+    if not r > 0:
+        raise ValueError(f"--circle radius must be > 0, got {r}")
+    return cx, cy, r
+
+
+def latlong_environment(path, lmax: int):
+    """Environment of a lat-long map file; ValueError if it cannot carry band ``lmax``.
+
+    A lat-long map of H rows samples latitude every 180/H degrees: bands up to
+    ``H/2 - 1`` are resolved (two samples per half-period of the highest band).
+    """
+    import numpy as np
+
+    from fit.scene import Environment
+    from hdr.envmap import latlong_directions
+    from hdr.exr import read_image
+
+    img = read_image(path)
+    h, w = img.shape[:2]
+    if lmax > h // 2 - 1:
+        raise ValueError(f"{path}: a {w}x{h} lat-long map supports bands up to {h // 2 - 1}, --lmax is {lmax}")
+    dirs, omega = latlong_directions(h, w)
+    return Environment(dirs.reshape(-1, 3), np.asarray(img, np.float64).reshape(h * w, -1), omega.reshape(-1))
+
+
+def _probe_environment(path, lmax: int):
+    import numpy as np
+
+    from fit.scene import Environment
+    from hdr.detect import detect_sphere
+    from hdr.exr import read_image
+    from hdr.probe import unwrap_probe
+
+    img = read_image(path)
+    circle = detect_sphere(img)
+    # The ball spans 360 degrees over its diameter 2r: r/2 pixels per band-limit half-period budget.
+    if lmax > circle[2] / 4:
+        raise ValueError(f"{path}: a mirror ball of radius {circle[2]:.0f} px supports bands up to {int(circle[2] / 4)}, --lmax is {lmax}")
+    s = unwrap_probe(img, circle)
+    v = s.valid
+    return Environment(s.dirs[v], np.asarray(s.radiance, np.float64)[v], s.solid_angle[v])
+
+
+def _sample_scene(env, image_path, circle):
+    import numpy as np
+
+    from fit.scene import Scene
+    from hdr.detect import detect_sphere
+    from hdr.exr import read_image
+    from hdr.probe import check_circle_in_frame
+    from hdr.sphere import sphere_pixels
+
+    img = read_image(image_path)
+    if img.shape[2] != env.channels:
+        raise ValueError(f"{image_path}: image has {img.shape[2]} channel(s) but its lighting has {env.channels}")
+    circle = detect_sphere(img) if circle is None else circle
+    circle = check_circle_in_frame(img.shape, circle, what=f"{image_path}: sphere circle")
+    px = sphere_pixels(img.shape, circle)
+    radiance = np.asarray(img, np.float64)[px.rows, px.cols]
+    return Scene(env, px.normals, radiance, px.weights), circle
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from fit.brdffile import save_brdf
+    from fit.fitter import fit_brdf
+
+    if not args.scene and not args.probe_scene:
+        raise ValueError("give at least one --scene ENV IMAGE or --probe-scene PROBE IMAGE")
+    if args.lmax < 0 or args.pmax < 0:
+        raise ValueError(f"--lmax and --pmax must be >= 0, got {args.lmax}, {args.pmax}")
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        raise OSError(f"-o {out}: directory {out.parent} does not exist")
+    circle = None if args.circle is None else parse_circle(args.circle)
+    scenes, inputs = [], []
+    for kind, pairs, make_env in (("latlong", args.scene, latlong_environment), ("probe", args.probe_scene, _probe_environment)):
+        for env_path, image_path in pairs:
+            env = make_env(env_path, args.lmax)
+            scene, used = _sample_scene(env, image_path, circle)
+            scenes.append(scene)
+            inputs.append({"lighting": str(env_path), "lighting_kind": kind, "image": str(image_path), "circle": list(used)})
+
+    result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress)
+    rep = result.report
+    print(rep["identifiability_summary"])
+    print(f"pixels: {rep['pixels']}")
+    for name, info in rep["candidates"].items():
+        if "skipped" in info:
+            print(f"  {name:10s} skipped: {info['skipped']}")
+            continue
+        held = info.get("heldout_relative_rms")
+        rank = info.get("rank")
+        cond = info.get("condition_number")
+        print(
+            f"  {name:10s} held-out rel. RMS {held if held is None else f'{held:.4f}'}"
+            + ("" if rank is None else f", rank {min(rank)}/{info['unknowns']}, cond {max(cond):.3g}")
+            + ("" if info.get("determined") else "  [not determined]")
+        )
+    print(f"model: {rep['chosen_model']} ({rep['reason']})")
+    for w in rep["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+    save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]})
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,76 @@
+"""The versioned BRDF file: round trips, and clear errors for other versions and corrupt files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fit.brdffile import FORMAT_VERSION, load_brdf, save_brdf
+from fit.models import make_linear_brdf
+from fit.system import ModelSpec
+
+
+def _random_model(kind: str, seed: int = 0):
+    spec = ModelSpec(kind, 4, 3, bands=(0, 1, 2, 4))
+    x = np.random.default_rng(seed).normal(size=(spec.n_unknowns, 3))
+    return make_linear_brdf(spec, x)
+
+
+@pytest.mark.parametrize("kind", ["diffuse", "lobe", "full"])
+def test_round_trip_preserves_the_model_exactly(tmp_path, kind):
+    brdf = _random_model(kind)
+    report = {"chosen_model": kind, "rank": np.array([3, 3, 3]), "cond": float("inf")}
+    path = save_brdf(tmp_path / "m.brdf.json", brdf, report)
+    back, rep = load_brdf(path)
+    assert back.model == kind and back.spec == brdf.spec
+    np.testing.assert_array_equal(back.x, brdf.x)
+    theta = np.radians([5.0, 40.0, 70.0])
+    np.testing.assert_array_equal(back.evaluate(theta, theta[::-1], 1.0), brdf.evaluate(theta, theta[::-1], 1.0))
+    assert rep["rank"] == [3, 3, 3] and rep["cond"] == "inf"
+    doc = json.loads(path.read_text())
+    assert doc["format"] == "brdfrig-brdf" and doc["version"] == FORMAT_VERSION
+    assert "sh_basis" in doc["conventions"] and "written_utc" in doc["provenance"]
+    assert [p.name for p in tmp_path.iterdir()] == ["m.brdf.json"]  # no temporary left
+
+
+def test_microfacet_model_round_trips_through_the_registry(tmp_path):
+    from fit.microfacet import MicrofacetBRDF
+
+    brdf = MicrofacetBRDF(alpha=0.2, f0=[0.04, 0.05, 0.06], diffuse=[0.5, 0.4, 0.3], f90=[1.0, 1.0, 1.0])
+    back, _ = load_brdf(save_brdf(tmp_path / "mf.json", brdf, {}))
+    theta = np.radians([10.0, 50.0])
+    np.testing.assert_allclose(back.evaluate(theta, theta, np.pi), brdf.evaluate(theta, theta, np.pi), rtol=1e-12)
+
+
+def test_other_version_and_corrupt_files_are_clear_errors(tmp_path):
+    path = save_brdf(tmp_path / "a.json", _random_model("diffuse"), {})
+    doc = json.loads(path.read_text())
+    doc["version"] = FORMAT_VERSION + 1
+    (tmp_path / "v.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="version 2 is not supported"):
+        load_brdf(tmp_path / "v.json")
+    (tmp_path / "c.json").write_text(path.read_text()[:-40])
+    with pytest.raises(ValueError, match="corrupt JSON"):
+        load_brdf(tmp_path / "c.json")
+    (tmp_path / "f.json").write_text(json.dumps({"format": "something-else", "version": 1}))
+    with pytest.raises(ValueError, match="not a brdfrig BRDF file"):
+        load_brdf(tmp_path / "f.json")
+    doc = json.loads(path.read_text())
+    doc["brdf"]["coefficients"] = doc["brdf"]["coefficients"][:-1]
+    (tmp_path / "s.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="corrupt BRDF file"):
+        load_brdf(tmp_path / "s.json")
+    doc["brdf"]["model"] = "plenoptic"
+    (tmp_path / "m.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="unknown BRDF model"):
+        load_brdf(tmp_path / "m.json")
+    with pytest.raises(OSError):
+        load_brdf(tmp_path / "missing.json")
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    with pytest.raises(TypeError):
+        save_brdf(tmp_path / "x.json", _random_model("lobe"), {"bad": object()})
+    assert list(tmp_path.iterdir()) == []

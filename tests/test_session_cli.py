@@ -1,0 +1,65 @@
+"""``brdfrig capture`` bad input through the real command line: one clear line, exit 2, nothing touched."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PLAN = """
+[rig]
+carries = "samples"
+[rig.turntable]
+backend = "sim"
+[rig.camera]
+backend = "sim"
+[plan]
+scenes = 2
+probe_rotations = ROT
+exposure = [0.01]
+[plan.probe]
+circle = [10, 10, 5]
+[[plan.samples]]
+name = "a"
+circle = [30, 10, 5]
+"""
+
+
+def brdfrig(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "capture", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_zero_rotations(tmp_path):
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN.replace("ROT", "[]"))
+    r = brdfrig("capture", "run", plan, "--out", tmp_path / "out")
+    assert r.returncode == 2
+    assert r.stderr.strip() == (
+        f"brdfrig capture: error: key 'probe_rotations' in [plan] of {plan} is empty: zero rotations would shoot "
+        "nothing; give at least one table angle in degrees, e.g. [0] or [0, 90, 180, 270]"
+    )
+    assert not (tmp_path / "out").exists()
+
+
+def test_existing_non_session_directory_is_left_alone(tmp_path):
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN.replace("ROT", "[0, 180]"))
+    out = tmp_path / "photos"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    r = brdfrig("capture", "run", plan, "--out", out, "--yes")
+    assert r.returncode == 2
+    assert "is not empty and is not a brdfrig session" in r.stderr and str(out) in r.stderr
+    assert [p.name for p in out.iterdir()] == ["keep.txt"] and (out / "keep.txt").read_text() == "precious"
+
+
+def test_dry_run_prints_the_plan(tmp_path):
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN.replace("ROT", "[0, 90, 180, 270]"))
+    r = brdfrig("capture", "run", plan, "--out", tmp_path / "out", "--dry-run")
+    assert r.returncode == 0, r.stderr
+    assert "scenes: 2 (the operator sets up each scene" in r.stdout and "8 shots" in r.stdout
+    assert not (tmp_path / "out").exists()
