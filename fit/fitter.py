@@ -20,6 +20,7 @@ Pipeline (``../shared/docs/MATH.md``):
    recomputed after every block and its predicted radiance on the held-out
    pixels compared with the previous one; the stream stops when that relative
    change stays below ``tol`` (default :data:`STOP_TOL`) for two consecutive blocks.
+   The resulting QR factor is shared by every solver and prior on the same model.
 5. Held-out check: a random :data:`HELDOUT_FRACTION` of the pixels (at most
    :data:`HELDOUT_MAX` of them) never enter a fit; each candidate's weighted
    relative RMS error on them is reported.  ``auto`` keeps only candidates the
@@ -149,20 +150,32 @@ def _rel_error(pred: np.ndarray, target: np.ndarray, weights: np.ndarray) -> flo
     return math.sqrt(num / den)
 
 
-def _fit_linear(spec, coeffs, pool, train, held, solver, x0, tol, progress, label) -> tuple[np.ndarray, dict]:
+@dataclass
+class _Stream:
+    """A model's streamed system: QR factor, held-out design, and how much of the pixel stream it took."""
+
+    spec: ModelSpec
+    qr: StreamedQR
+    heldout_design: np.ndarray
+    consumed: int
+    converged: bool
+    seconds: float
+
+
+def _stream(spec, coeffs, pool, train, held, tol, progress, label) -> _Stream:
+    """Fold random pixel blocks into the QR factor until the stopping rule holds (module docstring, step 4)."""
     t0 = time.perf_counter()
-    n, nc = spec.n_unknowns, pool.radiance.shape[1]
     a_h = _design(spec, coeffs, pool, held)
-    qr = StreamedQR(n, nc)
-    min_rows = 3 * n
-    prev, stable, converged = None, 0, False
+    qr = StreamedQR(spec.n_unknowns, pool.radiance.shape[1])
+    prev, stable, converged, consumed = None, 0, False, 0
     blocks = range(0, len(train), BLOCK_ROWS)
     for start in tqdm(blocks, desc=f"fit {label}", unit="block", disable=not progress, leave=False):
         idx = train[start : start + BLOCK_ROWS]
         qr.add(_design(spec, coeffs, pool, idx), pool.radiance[idx], pool.weights[idx])
-        if qr.rows < min_rows or len(held) == 0:
+        consumed = start + len(idx)
+        if qr.rows < 3 * spec.n_unknowns or len(held) == 0:
             continue
-        pred = np.einsum("inc,nc->ic", a_h, solve(qr, "joint", x0=x0).x)
+        pred = np.einsum("inc,nc->ic", a_h, solve(qr, "joint").x)
         if prev is not None:
             change = np.linalg.norm(pred - prev) / max(np.linalg.norm(pred), 1e-300)
             stable = stable + 1 if change < tol else 0
@@ -170,8 +183,19 @@ def _fit_linear(spec, coeffs, pool, train, held, solver, x0, tol, progress, labe
                 converged = True
                 break
         prev = pred
-    sol = solve(qr, solver, bands=spec.column_band, x0=x0)
-    held_err = _rel_error(np.einsum("inc,nc->ic", a_h, sol.x), pool.radiance[held], pool.weights[held]) if len(held) else None
+    return _Stream(spec, qr, a_h, consumed, converged, time.perf_counter() - t0)
+
+
+def _solve_stream(st: _Stream, pool, train, held, solver, x0) -> tuple[np.ndarray, dict]:
+    """Solve a streamed system with ``solver`` (and prior ``x0``); the candidate's report entry."""
+    t0 = time.perf_counter()
+    spec, n = st.spec, st.spec.n_unknowns
+    sol = solve(st.qr, solver, bands=spec.column_band, x0=x0)
+    used = train[: st.consumed]
+    energy = float(np.sum(pool.weights[used, None] * pool.radiance[used] ** 2))
+    held_err = None
+    if len(held):
+        held_err = _rel_error(np.einsum("inc,nc->ic", st.heldout_design, sol.x), pool.radiance[held], pool.weights[held])
     info = {
         "unknowns": n,
         "bands": list(spec.bands),
@@ -182,12 +206,12 @@ def _fit_linear(spec, coeffs, pool, train, held, solver, x0, tol, progress, labe
         "condition_number": sol.cond.tolist(),
         "full_rank": bool(np.all(sol.rank == n)),
         "tikhonov_lambda_rel": None if sol.lam is None else sol.lam.tolist(),
-        "rows_used": qr.rows,
+        "rows_used": st.qr.rows,
         "rows_available": int(len(train)),
-        "stopping_rule_converged": converged,
-        "train_relative_rms": math.sqrt(float(np.sum(sol.residual)) / max(float(np.sum(pool.weights[train][: qr.rows, None] * pool.radiance[train][: qr.rows] ** 2)), 1e-300)),
+        "stopping_rule_converged": st.converged,
+        "train_relative_rms": math.sqrt(float(np.sum(sol.residual)) / energy) if energy > 0 else 0.0,
         "heldout_relative_rms": held_err,
-        "seconds": time.perf_counter() - t0,
+        "seconds": st.seconds + time.perf_counter() - t0,
     }
     return sol.x, info
 
@@ -285,10 +309,14 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     fitted: dict[str, FittedBRDF] = {}
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
 
+    streams: dict[ModelSpec, _Stream] = {}  # one pixel stream (rotations, QR) per spec, shared by solvers and priors
+
     def linear(kind, name, spec_lmax, x0_brdf=None, use_solver=solver):
         spec = ModelSpec(kind, spec_lmax, pmax, bands=tuple(b for b in bands if b <= spec_lmax))
+        if spec not in streams:
+            streams[spec] = _stream(spec, coeffs, pool, train, held, tol, progress, name)
         x0 = None if x0_brdf is None else project_to_full(x0_brdf, spec)
-        x, info = _fit_linear(spec, coeffs, pool, train, held, use_solver, x0, tol, progress, name)
+        x, info = _solve_stream(streams[spec], pool, train, held, use_solver, x0)
         fitted[name] = make_linear_brdf(spec, x)
         candidates[name] = info
 
@@ -301,22 +329,18 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
             if brdf is not None:
                 fitted[name] = brdf
         elif full_lmax < 0 or (model == "auto" and full_lmax < 1):
-            candidates[name] = {"skipped": f"the lighting separates no full-model band limit >= 1 (needs >= 2 differing scenes)"}
+            candidates[name] = {"skipped": "the lighting separates no full-model band limit >= 1 (needs >= 2 differing scenes)"}
         elif name == "full":
             linear("full", name, full_lmax)
-        else:  # full+prior
-            prior = fitted.get("microfacet") or fitted.get("lobe")
+        else:  # full+prior: Tikhonov toward the best identifiable fit
+            if "microfacet" not in fitted and "lobe" not in fitted:  # requested alone: fit the prior first
+                brdf, info = _microfacet(scenes, pool, held, progress)
+                if brdf is None:
+                    linear("lobe", "lobe", lmax)
+                else:
+                    candidates["microfacet"], fitted["microfacet"] = info, brdf
             prior_name = "microfacet" if "microfacet" in fitted else "lobe"
-            if prior is None:
-                if model != "auto":
-                    brdf, info = _microfacet(scenes, pool, held, progress)
-                    if brdf is None:
-                        linear("lobe", "lobe", lmax)
-                        brdf, prior_name = fitted["lobe"], "lobe"
-                    else:
-                        candidates["microfacet"], fitted["microfacet"], prior_name = info, brdf, "microfacet"
-                    prior = brdf
-            linear("full", name, full_lmax, x0_brdf=prior, use_solver="tikhonov")
+            linear("full", name, full_lmax, x0_brdf=fitted[prior_name], use_solver="tikhonov")
             candidates[name]["prior"] = prior_name
 
     # Determinacy of each candidate: lighting (identifiability) and pixels (achieved rank).

@@ -27,9 +27,13 @@ from fit.brdf import register_model
 from fit.scene import Environment
 from fit.sh import sh_eval, sh_index
 from fit.shproject import project_environment
-from fit.system import ModelSpec, design_block
+from fit.rotation import local_lighting
+from fit.system import ModelSpec, design_block, outgoing_directions
 
 __all__ = ["LinearBRDF", "DiffuseBRDF", "LobeBRDF", "FullBRDF", "make_linear_brdf", "project_to_full", "plausibility"]
+
+PREDICT_BLOCK = 4096
+"""Pixels per design block when relighting (memory ~ PREDICT_BLOCK x unknowns x channels x 8 bytes)."""
 
 MIN_COS = 1e-6
 """``evaluate`` divides the transfer function by ``max(cos theta_i, MIN_COS)``."""
@@ -72,8 +76,11 @@ class LinearBRDF:
         """Radiance (N, C) at ``normals`` (N, 3) under lighting SH ``coeffs`` (ncoef, C)."""
         if coeffs.shape[1] != self.channels:
             raise ValueError(f"lighting has {coeffs.shape[1]} channels, the BRDF {self.channels}")
-        a = design_block(self.spec, coeffs, normals)
-        return np.einsum("inc,nc->ic", a, self.x)
+        out = np.empty((normals.shape[0], self.channels))
+        for start in range(0, normals.shape[0], PREDICT_BLOCK):  # bounded memory: design rows per block
+            a = design_block(self.spec, coeffs, normals[start : start + PREDICT_BLOCK])
+            out[start : start + PREDICT_BLOCK] = np.einsum("inc,nc->ic", a, self.x)
+        return out
 
     def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
         """Radiance (N, C) seen from ``v = (0, 0, 1)`` at unit ``normals`` (N, 3) under ``env``."""
@@ -155,6 +162,28 @@ class FullBRDF(LinearBRDF):
     """The seed's isotropic model ``tau[l,p,k]`` (MATH.md real form)."""
 
     model = "full"
+
+    def predict_from_coeffs(self, coeffs: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """As :meth:`LinearBRDF.predict_from_coeffs`, contracting over ``p`` first.
+
+        ``B = sum_{l,k} L'_{l,k}(n) f_{l,k}(theta_N)`` with ``f_{l,k} = sum_p tau[l,p,k] Y_{p,k}(w_o')``:
+        the (pixels x unknowns x channels) design is never formed.
+        """
+        if coeffs.shape[1] != self.channels:
+            raise ValueError(f"lighting has {coeffs.shape[1]} channels, the BRDF {self.channels}")
+        lc, pc, kc = self.spec.full_index
+        lk = sh_index(lc, kc)
+        used = np.unique(lk)  # lighting coefficients (l, k >= 0) the model reads
+        slot = np.searchsorted(used, lk)
+        weights = np.zeros(((self.spec.pmax + 1) ** 2, len(used), self.channels))
+        np.add.at(weights, (sh_index(pc, kc), slot), self.x)
+        coeffs = np.asarray(coeffs, dtype=np.float64)[: (self.lmax + 1) ** 2]
+        out = np.empty((normals.shape[0], self.channels))
+        for start in range(0, normals.shape[0], PREDICT_BLOCK):
+            n = normals[start : start + PREDICT_BLOCK]
+            f = np.einsum("np,pjc->njc", sh_eval(outgoing_directions(n), self.spec.pmax), weights)
+            out[start : start + PREDICT_BLOCK] = np.einsum("njc,njc->nc", local_lighting(coeffs, n)[:, used, :], f)
+        return out
 
     def transfer(self, wi, wo):
         lc, pc, kc = self.spec.full_index

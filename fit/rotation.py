@@ -212,33 +212,43 @@ def _x_csr_all(lmax: int) -> tuple[np.ndarray, ...]:
     return (ptr_off, nnz_off) + tuple(np.concatenate([b[i] for b in bands]) for i in range(6))
 
 
+#: Rotations processed together by the kernel (vectorised along this axis).
+_KERNEL_BLOCK = 128
+
+
 @numba.njit(cache=True, inline="always")
-def _z_rotate(a, l, cos_m, sin_m):  # pragma: no cover - compiled
-    """In place: entry m of band vector ``a`` (2l+1,) becomes ``cos(m t) a_m - sin(m t) a_-m``."""
+def _z_rotate(a, l, cos_m, sin_m, kb):  # pragma: no cover - compiled
+    """In place: row m of ``a`` (rows of band l, rotations along axis 1) becomes
+    ``cos(m t) a_m - sin(m t) a_-m`` with ``cos_m[m, k] = cos(m t_k)``."""
     for m in range(1, l + 1):
-        c, s = cos_m[m], sin_m[m]
-        p, q = a[l + m], a[l - m]
-        a[l + m] = c * p - s * q
-        a[l - m] = c * q + s * p
+        for k in range(kb):
+            c, s = cos_m[m, k], sin_m[m, k]
+            p, q = a[l + m, k], a[l - m, k]
+            a[l + m, k] = c * p - s * q
+            a[l - m, k] = c * q + s * p
 
 
 @numba.njit(cache=True, inline="always")
-def _csr_matvec(indptr, start, indices, data, a, out):  # pragma: no cover - compiled
+def _csr_matmul(indptr, start, indices, data, a, out, kb):  # pragma: no cover - compiled
+    """``out[i, :kb] = sum_j M[i, j] a[j, :kb]`` for the CSR matrix M."""
     for i in range(indptr.shape[0] - 1):
-        acc = 0.0
+        for k in range(kb):
+            out[i, k] = 0.0
         for p in range(start + indptr[i], start + indptr[i + 1]):
-            acc += data[p] * a[indices[p]]
-        out[i] = acc
+            v, j = data[p], indices[p]
+            for k in range(kb):
+                out[i, k] += v * a[j, k]
 
 
 @numba.njit(cache=True, inline="always")
-def _multiples(angle, lmax, cos_m, sin_m):  # pragma: no cover - compiled
-    """``cos(m angle), sin(m angle)`` for m = 0..lmax by complex multiplication (error ~ m eps)."""
-    c1, s1 = np.cos(angle), np.sin(angle)
-    cos_m[0], sin_m[0] = 1.0, 0.0
-    for m in range(1, lmax + 1):
-        cos_m[m] = cos_m[m - 1] * c1 - sin_m[m - 1] * s1
-        sin_m[m] = sin_m[m - 1] * c1 + cos_m[m - 1] * s1
+def _multiples(angles, k0, kb, lmax, cos_m, sin_m):  # pragma: no cover - compiled
+    """``cos_m[m, k] = cos(m angles[k0 + k])`` (and sin) for m = 0..lmax by complex multiplication."""
+    for k in range(kb):
+        c1, s1 = np.cos(angles[k0 + k]), np.sin(angles[k0 + k])
+        cos_m[0, k], sin_m[0, k] = 1.0, 0.0
+        for m in range(1, lmax + 1):
+            cos_m[m, k] = cos_m[m - 1, k] * c1 - sin_m[m - 1, k] * s1
+            sin_m[m, k] = sin_m[m - 1, k] * c1 + cos_m[m - 1, k] * s1
 
 
 @numba.njit(nogil=True, cache=True)
@@ -247,29 +257,36 @@ def _rotate_kernel(c, lmin, lmax, alpha, beta, gamma, ptr_off, nnz_off, xp, xi, 
 
     ``c`` (ncoef_in, C) and ``out`` (K, ncoef_in, C) hold bands lmin..lmax only
     (row of (l, m) = l*l + l + m - lmin*lmin).  CSR arrays from ``_x_csr_all``.
+    Rotations are processed in blocks of ``_KERNEL_BLOCK`` with the block as the
+    inner (SIMD) loop.
     """
-    nc, first = c.shape[1], lmin * lmin
-    a = np.empty(2 * lmax + 1)
-    b = np.empty(2 * lmax + 1)
-    trig = np.empty((6, lmax + 1))
-    for k in range(out.shape[0]):
-        _multiples(alpha[k], lmax, trig[0], trig[1])
-        _multiples(beta[k], lmax, trig[2], trig[3])
-        _multiples(gamma[k], lmax, trig[4], trig[5])
+    nc, first, k_total = c.shape[1], lmin * lmin, out.shape[0]
+    blk = _KERNEL_BLOCK
+    a = np.empty((2 * lmax + 1, blk))
+    b = np.empty((2 * lmax + 1, blk))
+    trig = np.empty((6, lmax + 1, blk))
+    for k0 in range(0, k_total, blk):
+        kb = min(blk, k_total - k0)
+        _multiples(alpha, k0, kb, lmax, trig[0], trig[1])
+        _multiples(beta, k0, kb, lmax, trig[2], trig[3])
+        _multiples(gamma, k0, kb, lmax, trig[4], trig[5])
         for l in range(lmin, lmax + 1):
             n, row = 2 * l + 1, l * l - first
             x_ptr = xp[ptr_off[l] : ptr_off[l] + n + 1]
             t_ptr = tp[ptr_off[l] : ptr_off[l] + n + 1]
             for ch in range(nc):
                 for i in range(n):
-                    a[i] = c[row + i, ch]
-                _z_rotate(a, l, trig[4], trig[5])
-                _csr_matvec(x_ptr, nnz_off[l], xi, xd, a, b)
-                _z_rotate(b, l, trig[2], trig[3])
-                _csr_matvec(t_ptr, nnz_off[l], ti, td, b, a)
-                _z_rotate(a, l, trig[0], trig[1])
-                for i in range(n):
-                    out[k, row + i, ch] = a[i]
+                    v = c[row + i, ch]
+                    for k in range(kb):
+                        a[i, k] = v
+                _z_rotate(a, l, trig[4], trig[5], kb)
+                _csr_matmul(x_ptr, nnz_off[l], xi, xd, a, b, kb)
+                _z_rotate(b, l, trig[2], trig[3], kb)
+                _csr_matmul(t_ptr, nnz_off[l], ti, td, b, a, kb)
+                _z_rotate(a, l, trig[0], trig[1], kb)
+                for k in range(kb):
+                    for i in range(n):
+                        out[k0 + k, row + i, ch] = a[i, k]
 
 
 def _worker_count() -> int:

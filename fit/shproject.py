@@ -22,7 +22,9 @@ Two projection paths:
   rotation).  Treating pixels as point samples at their centres, this is EXACT
   for maps band-limited to ``lmax`` when ``2 lmax <= H - 1`` and ``2 lmax < W``,
   and costs O(H W log W + H lmax^2) instead of the O(H W lmax^2) of the dense
-  product (see ``python -m fit.bench_sh``).
+  product.  Measured by ``python -m fit.bench_sh`` (one run, busy 2-core
+  machine): a 1024x512 RGB map to l = 30 in 14 ms, against 46 ms for pyshtools'
+  ``SHExpandDH`` (3 calls) and 4.4 s for the dense sphericart product.
 """
 
 from __future__ import annotations
@@ -225,7 +227,7 @@ def _polar_to_world(coeffs: np.ndarray, lmax: int, inverse: bool = False) -> np.
     return out
 
 
-def _check_latlong_size(height: int, width: int, lmax: int) -> None:
+def _check_latlong_size(width: int, lmax: int) -> None:
     if width <= 2 * lmax:
         raise ValueError(f"a lat-long map {width} pixels wide resolves bands up to {(width - 1) // 2}, not lmax={lmax}")
 
@@ -261,7 +263,7 @@ def project_latlong(image, lmax: int, window: str | None = None) -> np.ndarray:
     if not np.all(np.isfinite(img3)):
         raise ValueError("image contains non-finite values")
     h, w, nc = img3.shape
-    _check_latlong_size(h, w, lmax)
+    _check_latlong_size(w, lmax)
     table, fejer = _latlong_tables(h, lmax)
     # channel-first so that each FFT runs over contiguous memory
     spec = np.fft.rfft(np.ascontiguousarray(img3.transpose(2, 0, 1)), axis=-1)[..., : lmax + 1]
@@ -294,7 +296,7 @@ def reconstruct_latlong(coeffs, height: int, width: int) -> np.ndarray:
     for name, v in (("height", height), ("width", width)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name} must be a positive integer, got {v!r}")
-    _check_latlong_size(height, width, lmax)
+    _check_latlong_size(width, lmax)
     polar = _polar_to_world(c, lmax, inverse=True)
     table, _ = _latlong_tables(height, lmax)
     spec = np.zeros((height, width // 2 + 1, c.shape[1]), dtype=complex)

@@ -61,20 +61,30 @@ def test_one_scene_ggx_relights_within_eight_percent(probes, noise):
     assert err <= 0.08
 
 
+_TWELVE: dict = {}
+
+
 @pytest.mark.parametrize("noise", [0.0, 0.01])
 def test_twelve_scenes_ggx_full_model_relights_within_three_percent(probes, noise):
     fit_env, test_env = probes
-    normals, weights = sphere(64)
-    truth = GGX(**GGX_MATERIAL)
-    scenes = make_scenes(truth, rotations(fit_env, 12), normals, weights, noise=noise)
+    if not _TWELVE:  # the noise-free ground truth, rendered once for both cases
+        normals, weights = sphere(48)
+        truth = GGX(**GGX_MATERIAL)
+        _TWELVE.update(normals=normals, weights=weights, truth=truth, clean=make_scenes(truth, rotations(fit_env, 12), normals, weights))
+    normals, truth = _TWELVE["normals"], _TWELVE["truth"]
+    rng = np.random.default_rng(1)
+    scenes = [Scene(s.env, s.normals, s.radiance * (1 + noise * rng.normal(size=s.radiance.shape)), s.weights) for s in _TWELVE["clean"]]
     res = fit_brdf(scenes, model="full", lmax=8, pmax=8, progress=False)
     assert res.report["identifiability"]["models"]["full"]["determined"]
     assert res.report["candidates"]["full"]["determined"]
     err = relight_error(res.brdf, truth, test_env, normals)
-    prior = fit_brdf(scenes, model="full+prior", lmax=8, pmax=8, progress=False)
-    err_prior = relight_error(prior.brdf, truth, test_env, normals)
-    print(f"ggx 12 scenes noise={noise}: full relight {err:.4%}, full+prior {err_prior:.4%}")
-    assert err <= 0.03 and err_prior <= 0.03
+    print(f"ggx 12 scenes noise={noise}: full relight {err:.4%}")
+    assert err <= 0.03
+    if noise:
+        prior = fit_brdf(scenes, model="full+prior", lmax=8, pmax=8, progress=False)
+        err_prior = relight_error(prior.brdf, truth, test_env, normals)
+        print(f"  full+prior (toward {prior.report['candidates']['full+prior']['prior']}) relight {err_prior:.4%}")
+        assert err_prior <= 0.03
 
 
 def test_joint_and_tikhonov_at_least_as_accurate_as_paper(probes):

@@ -67,11 +67,17 @@ def make_scenes(brdf, envs, normals, weights, noise: float = 0.0, seed: int = 0)
     return out
 
 
-def relight_error(brdf, truth_brdf, env: Environment, normals: np.ndarray, max_theta_deg: float = 80.0) -> float:
-    """Relative RMS error of ``brdf.predict`` against the ground truth, within the fitter's limb margin."""
+def relight_error(brdf, truth_brdf, env: Environment, normals: np.ndarray, max_theta_deg: float = 80.0, _cache={}) -> float:
+    """Relative RMS error of ``brdf.predict`` against the ground truth, within the fitter's limb margin.
+
+    The ground-truth rendering is memoised per (truth BRDF, environment, normals) object triple.
+    """
     sel = normals[:, 2] >= math.cos(math.radians(max_theta_deg))
+    key = (id(truth_brdf), id(env), id(normals), max_theta_deg)
+    if key not in _cache:
+        _cache[key] = (truth_brdf, env, normals, render_groundtruth(truth_brdf, normals[sel], env))
+    truth = _cache[key][3]
     pred = brdf.predict(env, normals[sel])
-    truth = render_groundtruth(truth_brdf, normals[sel], env)
     return float(np.sqrt(np.sum((pred - truth) ** 2) / np.sum(truth**2)))
 
 
