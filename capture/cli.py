@@ -18,7 +18,7 @@ import importlib
 import os
 import sys
 
-COMMAND_MODULES: tuple[str, ...] = ("capture.cmd_capture", "capture.cmd_refit", "capture.cmd_demo", "capture.cmd_bench", "capture.cmd_merge", "capture.cmd_probe", "capture.cmd_envsh", "capture.cmd_fit", "capture.cmd_render",)
+COMMAND_MODULES: tuple[str, ...] = ("capture.cmd_capture", "capture.cmd_refit", "capture.cmd_demo", "capture.cmd_bench", "capture.cmd_merge", "capture.cmd_probe", "capture.cmd_envsh", "capture.cmd_fit", "capture.cmd_render", "capture.cmd_rig",)
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130

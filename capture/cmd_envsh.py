@@ -33,7 +33,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "envsh",
         help="project an environment map to spherical harmonics and plot reconstructions",
-        description=__doc__.splitlines()[0],
+        description="Project a lat-long environment map (OpenEXR LatLong layout) to real spherical harmonics and "
+        "write a PNG comparing it with its reconstruction at each band limit (seed paper, figure 5).",
     )
     p.add_argument("env", metavar="ENV", type=Path, help="lat-long environment map (.hdr or .exr, OpenEXR LatLong layout)")
     p.add_argument("--bands", default=",".join(map(str, DEFAULT_BANDS)), help="band limits to show (default: 5,15,35)")

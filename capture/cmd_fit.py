@@ -4,7 +4,7 @@ Each ``--scene ENV IMAGE`` pairs a lat-long environment map (MATH.md
 convention, EXR or Radiance .hdr, any resolution) with an HDR image of the
 sample sphere taken under it; ``--probe-scene PROBE IMAGE`` takes the lighting
 from a mirror-ball image instead (circle auto-detected, unwrapped by
-``hdr.probe``).  The sample sphere's circle is auto-detected in every IMAGE
+``hdr.probe``; ``--probe-circle`` overrides detection).  The sample sphere's circle is auto-detected in every IMAGE
 unless ``--circle cx,cy,r`` is given.  Pixels within ``hdr.sphere``'s default
 limb margin get weight 0, and the fitter ignores normals beyond 80 degrees from
 the view (``fit.fitter``).  Prints the identifiability report and the fit
@@ -35,19 +35,20 @@ def register(subparsers) -> None:
     p.add_argument("--pmax", type=int, default=8, help="outgoing band limit of the full model (default: %(default)s)")
     p.add_argument("--solver", choices=("paper", "joint", "tikhonov"), default="joint", help="least-squares solver (default: %(default)s)")
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
+    p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("-o", "--output", required=True, help="output BRDF file (JSON)")
     p.set_defaults(func=run)
 
 
-def parse_circle(text: str) -> tuple[float, float, float]:
-    """``'cx,cy,r'`` -> floats; ValueError naming ``--circle`` otherwise."""
+def parse_circle(text: str, option: str = "--circle") -> tuple[float, float, float]:
+    """``'cx,cy,r'`` -> floats; ValueError naming ``option`` otherwise."""
     try:
         cx, cy, r = (float(v) for v in text.split(","))
     except ValueError:
-        raise ValueError(f"--circle must be 'cx,cy,r' (three numbers), got {text!r}") from None
+        raise ValueError(f"{option} must be 'cx,cy,r' (three numbers), got {text!r}") from None
     if not r > 0:
-        raise ValueError(f"--circle radius must be > 0, got {r}")
+        raise ValueError(f"{option} radius must be > 0, got {r}")
     return cx, cy, r
 
 
@@ -71,7 +72,7 @@ def latlong_environment(path, lmax: int):
     return Environment(dirs.reshape(-1, 3), np.asarray(img, np.float64).reshape(h * w, -1), omega.reshape(-1))
 
 
-def _probe_environment(path, lmax: int):
+def _probe_environment(path, lmax: int, circle=None):
     import numpy as np
 
     from fit.scene import Environment
@@ -80,7 +81,7 @@ def _probe_environment(path, lmax: int):
     from hdr.probe import unwrap_probe
 
     img = read_image(path)
-    circle = detect_sphere(img)
+    circle = detect_sphere(img) if circle is None else circle
     # The ball spans 360 degrees over its diameter 2r: r/2 pixels per band-limit half-period budget.
     if lmax > circle[2] / 4:
         raise ValueError(f"{path}: a mirror ball of radius {circle[2]:.0f} px supports bands up to {int(circle[2] / 4)}, --lmax is {lmax}")
@@ -122,10 +123,14 @@ def run(args) -> int:
     if not out.parent.is_dir():
         raise OSError(f"-o {out}: directory {out.parent} does not exist")
     circle = None if args.circle is None else parse_circle(args.circle)
+    probe_circle = None if args.probe_circle is None else parse_circle(args.probe_circle, "--probe-circle")
     scenes, inputs = [], []
-    for kind, pairs, make_env in (("latlong", args.scene, latlong_environment), ("probe", args.probe_scene, _probe_environment)):
+    for kind, pairs in (("latlong", args.scene), ("probe", args.probe_scene)):
         for env_path, image_path in pairs:
-            env = make_env(env_path, args.lmax)
+            if kind == "latlong":
+                env = latlong_environment(env_path, args.lmax)
+            else:
+                env = _probe_environment(env_path, args.lmax, probe_circle)
             scene, used = _sample_scene(env, image_path, circle)
             scenes.append(scene)
             inputs.append({"lighting": str(env_path), "lighting_kind": kind, "image": str(image_path), "circle": list(used)})

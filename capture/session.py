@@ -17,15 +17,16 @@ table, records an ``interrupted`` stop in the journal and re-raises.
 from __future__ import annotations
 
 import contextlib
+import difflib
 import errno
-import math
+import hashlib
 import sys
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
 
-from capture.config import SessionConfig, stored_session_config
+from capture.config import ConfigError, SessionConfig, stored_session_config
 from capture.plan import Plan, Shot, auto_bracket, build_plan, meter_range, shot_key
 from capture.store import DiskFullError, SessionStore
 
@@ -68,11 +69,9 @@ def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
             )
             turntable.home()
         if cam_cfg.backend == "sim":
-            from rig.sim_bench import SimBench
             from rig.sim_camera import SimulatedCamera
 
-            bench = SimBench(**{k: v for k, v in config.rig.sim.items() if k not in _SIM_TABLE_KEYS},
-                             carries=config.rig.carries)
+            bench = sim_bench(config)
             camera = SimulatedCamera(bench, table_state, **_sim_camera_options(config))
         elif cam_cfg.backend == "gphoto2":
             from rig.gphoto import GphotoCamera
@@ -89,6 +88,22 @@ def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
 _SIM_TABLE_KEYS = ("table_start_deg",)
 
 
+def sim_bench(config: SessionConfig):
+    """The ``rig.sim_bench.SimBench`` described by ``[rig.sim]`` (unknown keys named in the error)."""
+    import inspect
+
+    from rig.sim_bench import SimBench
+
+    opts = {k: v for k, v in config.rig.sim.items() if k not in _SIM_TABLE_KEYS}
+    allowed = [p for p in inspect.signature(SimBench).parameters if p != "carries"]
+    for key in opts:
+        if key not in allowed:
+            hint = difflib.get_close_matches(key, allowed, n=1)
+            raise ConfigError(f"unknown key {key!r} in [rig.sim] of {config.source}"
+                              + (f"; did you mean {hint[0]!r}?" if hint else f"; allowed keys: {', '.join(allowed)}"))
+    return SimBench(carries=config.rig.carries, **opts)
+
+
 def _sim_table_options(config: SessionConfig) -> dict:
     """The simulated table's true mechanics: the configured ones (a correctly set-up board)."""
     tt = config.rig.turntable
@@ -102,7 +117,22 @@ def _sim_table_options(config: SessionConfig) -> dict:
 
 
 def _sim_camera_options(config: SessionConfig) -> dict:
-    return {}
+    """The simulated sensor: the noise model the config declares (so auto exposure and merge match it)."""
+    cam = config.rig.camera
+    return {"full_well_e": cam.full_well_e, "read_noise_e": cam.read_noise_e,
+            "seed": int(config.rig.sim.get("seed", 0))}
+
+
+def _seed_for_shot(camera, key: str) -> None:
+    """Make a simulated camera's noise a function of the shot's identity, not of its capture count.
+
+    ``rig.sim_camera.SimulatedCamera`` draws noise from ``(seed, captures)``;
+    resetting ``captures`` to a number derived from the shot key means a
+    resumed session writes exactly the files an uninterrupted one would.
+    Real cameras have no ``captures`` attribute and are left alone.
+    """
+    if hasattr(camera, "captures") and hasattr(camera, "seed"):
+        camera.captures = int.from_bytes(hashlib.sha256(key.encode()).digest()[:4], "little")
 
 
 def frame_mask(shape: tuple[int, int], config: SessionConfig) -> np.ndarray | None:
@@ -145,6 +175,7 @@ class _Runner:
     def _shoot(self, key: str, time_s: float, kind: str, scene: int, angle: float) -> str:
         cam = self.cfg.rig.camera
         self.camera.set_exposure(time_s, cam.iso, cam.f_number)
+        _seed_for_shot(self.camera, key)
         path = self.camera.capture(self.store.incoming)
         rel = self.store.store_file(path, RAW_SUBDIR, key, kind=kind, key=key, scene=scene, angle_deg=angle,
                                     time_s=time_s)

@@ -113,10 +113,12 @@ class SimulatedCamera:
         dest = Path(dest_dir)
         if not dest.is_dir():
             raise OSError(f"capture destination {str(dest)!r} is not a directory")
+        if self.exposure is None:
+            raise ValueError("set_exposure() must be called before capturing")
+        t, iso, f = self.exposure
         angle = float(self.table_state.table_angle_deg) if self.table_state is not None else 0.0
         self.last_angle_deg = angle
         radiance = self.bench.radiance(angle)
-        t, iso, f = self.exposure if self.exposure is not None else check_exposure(0, 0, 0)
         rng = np.random.default_rng([self.seed, self.captures])
         self.captures += 1
         gain = iso / 100.0

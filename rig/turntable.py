@@ -304,8 +304,9 @@ class GrblTurntable:
     def _soft_reset(self) -> None:
         """Send 0x18 and wait for the GRBL 1.1 greeting; explain what came instead if it never does."""
         heard: list[str] = []
+        noise = bytearray()  # bytes that never formed a line (a wrong baud rate gives such noise)
         for _ in range(self.retries + 1):
-            self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
+            noise += self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
             self.link.write(gp.RESET)
             deadline = time.monotonic() + self.connect_timeout_s
             try:
@@ -324,6 +325,7 @@ class GrblTurntable:
                     heard.append(line)
             except DeviceTimeout:
                 continue
+        noise += self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
         port, baud = self.link.port, self.link.baud
         readable = [h for h in heard if h.isprintable() and "\ufffd" not in h]
         if readable:
@@ -331,7 +333,7 @@ class GrblTurntable:
                 f"the device on port {port!r} is not a GRBL 1.1 controller: it answered {readable[0]!r} "
                 "(check the 'port' setting)"
             )
-        if heard:
+        if heard or noise:
             raise DeviceNotFound(
                 f"only unreadable bytes came back from port {port!r} at {baud} baud: check the 'baud' setting "
                 "(GRBL 1.1 uses 115200)"

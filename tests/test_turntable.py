@@ -17,9 +17,12 @@ SPD = 80.0  # steps per degree: 1.8 deg motor, 16 microsteps, 1:2 belt... (0.012
 STEP = 1.0 / SPD
 
 # Driver timing for a fast simulator: every wait is short so that faults cost milliseconds.
-FAST = dict(poll_interval_s=0.001, reply_timeout_s=0.03, stall_timeout_s=0.03, move_margin_s=0.1,
+FAST = dict(poll_interval_s=0.001, reply_timeout_s=0.015, stall_timeout_s=0.015, move_margin_s=0.1,
             resync_quiet_s=0.005, reconnect_delay_s=0.02, reconnect_attempts=5, connect_timeout_s=0.1,
             homing_timeout_s=0.1)
+# Generous deadlines for tests that inject no faults (a loaded CI machine must not cause spurious timeouts).
+SAFE = {**FAST, "reply_timeout_s": 1.0, "stall_timeout_s": 1.0, "move_margin_s": 2.0, "connect_timeout_s": 2.0,
+        "homing_timeout_s": 2.0}
 
 
 def fast_sim(**kw) -> GrblSimulator:
@@ -42,7 +45,7 @@ def test_reply_parser_classifies_grbl_lines():
 
 
 def test_home_move_and_readback_match_the_mechanics():
-    with fast_sim(max_rate_deg_s=3600.0) as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, **FAST) as table:
+    with fast_sim(max_rate_deg_s=3600.0) as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, **SAFE) as table:
         assert isinstance(table, Turntable)
         assert table.position_deg is None  # nothing confirmed before homing
         with pytest.raises(DeviceRefused, match="not homed"):
@@ -62,7 +65,7 @@ def test_home_move_and_readback_match_the_mechanics():
 
 def test_without_compensation_the_simulated_play_shows():
     """Oracle for the mechanics: coming down without compensation leaves the table ``play`` above target."""
-    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, 0.0, **FAST) as table:
+    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, 0.0, **SAFE) as table:
         table.home()
         table.move_to(30.0)
         table.move_to(20.0)
@@ -71,7 +74,7 @@ def test_without_compensation_the_simulated_play_shows():
 
 def test_simulator_and_driver_agree_after_10000_random_moves_with_backlash():
     rng = random.Random(7)
-    with fast_sim(backlash_deg=0.75, max_rate_deg_s=1e7) as sim, GrblTurntable(sim.port, 115200, SPD, 0.75, **FAST) as table:
+    with fast_sim(backlash_deg=0.75, max_rate_deg_s=1e7) as sim, GrblTurntable(sim.port, 115200, SPD, 0.75, **SAFE) as table:
         table.home()
         worst = 0.0
         for _ in range(10_000):
@@ -202,7 +205,7 @@ def test_impossible_settings_are_refused_before_touching_the_port(kwargs, name):
 
 
 def test_non_finite_target_is_refused_and_table_stays_put():
-    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, **FAST) as table:
+    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, **SAFE) as table:
         table.home()
         table.move_to(5.0)
         with pytest.raises(ValueError, match="angle"):
@@ -211,6 +214,6 @@ def test_non_finite_target_is_refused_and_table_stays_put():
 
 
 def test_firmware_steps_per_unit_is_corrected_on_connect():
-    with fast_sim(firmware_steps_per_degree=250.0) as sim, GrblTurntable(sim.port, 115200, SPD, **FAST) as table:
+    with fast_sim(firmware_steps_per_degree=250.0) as sim, GrblTurntable(sim.port, 115200, SPD, **SAFE) as table:
         table.home()
         assert table.move_to(90.0) == 90.0 and sim.table_angle_deg == 90.0
