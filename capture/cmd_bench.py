@@ -2,8 +2,8 @@
 
 Lighting: the real lat-long probes of ``--probes`` (default ``../shared/data/probes``
 beside the source tree) when at least two are present (fit under the first,
-relight under the second), otherwise a procedural map and a copy of it turned
-by 90 degrees about the vertical axis and recoloured.  The output says which.
+relight under the second), otherwise the simulated bench's procedural room
+(``rig.sim_bench``) and its held-out lighting.  The output says which.
 """
 
 from __future__ import annotations
@@ -55,17 +55,11 @@ def _environment(image):
 
 
 def _procedural(rows: int):
-    """Two procedural lat-long maps (fit, test): D's simulated-bench environment and a turned, recoloured copy."""
-    import numpy as np
+    """(fit, test) environments from D's simulated bench: its procedural room and its held-out lighting."""
+    from rig.sim_bench import SimBench
 
-    from hdr.envmap import latlong_directions
-    from rig.sim_bench import procedural_environment
-
-    dirs, _ = latlong_directions(rows, 2 * rows)
-    fit_map = np.asarray(procedural_environment(dirs), np.float64)
-    turned = dirs @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]).T
-    test_map = np.asarray(procedural_environment(turned), np.float64)[..., ::-1]
-    return fit_map, test_map
+    sim = SimBench(env_height=rows)
+    return sim.environment(0.0), sim.heldout_environment()
 
 
 def run(args) -> int:
@@ -81,11 +75,11 @@ def run(args) -> int:
         from hdr.exr import read_image
 
         maps = [_box_downsample(np.asarray(read_image(p), np.float64)[..., :3], rows) for p in probes[:2]]
+        fit_env, test_env = (_environment(m) for m in maps)
         lighting = f"real probes: fit {probes[0].name}, relight {probes[1].name} ({2 * rows}x{rows})"
     else:
-        maps = list(_procedural(rows))
-        lighting = f"procedural maps ({2 * rows}x{rows}; no real probes in {args.probes})"
-    fit_env, test_env = (_environment(m) for m in maps)
+        fit_env, test_env = _procedural(rows)
+        lighting = f"procedural maps of rig.sim_bench ({2 * rows}x{rows}; no real probes in {args.probes})"
 
     def sphere(size: int):
         px = sphere_pixels((size, size), (size / 2, size / 2, size / 2))

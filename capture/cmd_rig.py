@@ -72,7 +72,7 @@ def _settings(args) -> tuple[_TableSettings, _CameraSettings, dict, str]:
         return table, camera, dict(rig.sim), rig.carries
     if args.simulate:
         table = _TableSettings("sim", "", args.baud, args.steps_per_degree, args.backlash, 30.0)
-        return table, _CameraSettings("sim", 100, 8.0, args.exposure, "", 10.0), {"scale": 0.25}, "rig"
+        return table, _CameraSettings("sim", 100, 8.0, args.exposure, "", 10.0), {"scale": 0.25, "env_height": 16}, "rig"
     table = _TableSettings("grbl" if args.port else "none", args.port or "", args.baud, args.steps_per_degree,
                            args.backlash, 30.0)
     camera = _CameraSettings(args.camera, 100, 8.0, args.exposure, args.watch_dir, 60.0)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fit.sh import sh_index
-from fit.solvers import RANK_RTOL, numerical_rank
+from fit.solvers import numerical_rank
 from fit.system import LINEAR_MODELS, ModelSpec, design_block
 
 __all__ = ["ENERGY_RTOL", "THETA_MAX_DEG", "Identifiability", "analyse_lighting", "scenes_needed"]

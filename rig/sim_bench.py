@@ -110,8 +110,9 @@ class SimBench:
     render_nodes : int
         The samples are rendered exactly on a ``render_nodes`` x ``render_nodes`` grid of
         the sphere's image-plane offsets and interpolated (cubic) to every pixel:
-        brute-force quadrature at every pixel costs ~50x more and changes the
-        radiance by far less than the sensor noise (``tests/test_sim_bench.py``).
+        10-14x faster than quadrature at every pixel of a radius-90 sphere, for a
+        0.13-0.18% RMS difference, far below the sensor noise
+        (``python -m rig.bench_render``, ``tests/test_sim_bench.py``).
 
     Attributes
     ----------

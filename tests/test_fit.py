@@ -7,7 +7,6 @@ within the fitter's limb margin (``test_fit_scenes.relight_error``).
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
