@@ -67,7 +67,7 @@ class SampleResult:
     brdf: object
     report: dict
     brdf_path: Path
-    figure_path: Path
+    figure_path: Path | None
     stats: dict
 
 
@@ -245,8 +245,11 @@ def relative_rms(pred: np.ndarray, truth: np.ndarray, weights: np.ndarray | None
 
 
 def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progress: bool = True,
-                 echo: Callable[[str], None] = print) -> PipelineResult:
-    """Verify, merge (cached), build the scenes, fit every sample, and write BRDF files, figures and stats."""
+                 echo: Callable[[str], None] = print, figures: bool = True) -> PipelineResult:
+    """Verify, merge (cached), build the scenes, fit every sample, and write BRDF files, figures and stats.
+
+    ``figures=False`` skips the PNG figures (``SampleResult.figure_path`` is then None).
+    """
     from tqdm import tqdm
 
     from capture.figures import fit_figure
@@ -281,11 +284,12 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
             own.append(relative_rms(pred, s.radiance[w]))
         stats = {"model": res.brdf.model, "scenes": len(scenes), "self_relative_rms": own,
                  "self_relative_rms_mean": float(np.mean(own))}
-        figure_path = results_dir / f"{name}.png"
-        fit_figure(figure_path, scenes, pixels, res.brdf,
-                   title=f"{name}: {res.brdf.model} fit, lmax {fit.lmax}, {len(scenes)} scene(s)")
+        figure_path = results_dir / f"{name}.png" if figures else None
+        if figures:
+            fit_figure(figure_path, scenes, pixels, res.brdf,
+                       title=f"{name}: {res.brdf.model} fit, lmax {fit.lmax}, {len(scenes)} scene(s)")
         result.samples.append(SampleResult(name, res.brdf, report, brdf_path, figure_path, stats))
-        stats_all["samples"][name] = {**stats, "brdf": brdf_path.name, "figure": figure_path.name,
+        stats_all["samples"][name] = {**stats, "brdf": brdf_path.name, "figure": figure_path and figure_path.name,
                                       "report": _jsonable(report)}
         echo(f"  {name}: model {res.brdf.model}, image error {100 * stats['self_relative_rms_mean']:.2f}% "
              f"(relative RMS over {len(scenes)} scene(s)) -> {brdf_path}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -39,10 +40,14 @@ __all__ = [
     "scenes_needed",
     "shot_key",
     "SATURATION_HEADROOM",
+    "meter_bracket",
 ]
 
 #: Fraction of the white level an exposure may put the brightest pixel at (headroom for noise and vignetting).
 SATURATION_HEADROOM = 0.8
+#: Metering steps down by this many stops while the metering frame has clipped pixels, at most this many frames.
+METER_STEP_STOPS = 4
+METER_MAX_SHOTS = 3
 #: Largest step between consecutive exposures of an auto bracket, in stops (keeps a well-exposed overlap).
 MAX_GAP_STOPS = 3.0
 #: Shortest and longest exposure time the planner proposes, seconds.
@@ -274,3 +279,30 @@ def auto_bracket(e_lo: float, e_hi: float, *, full_well_e: float, read_noise_e: 
         k_next = min(longest_below(s_max / reach), k + max(1, math.floor(max_gap_stops / stop_step + 1e-9)))
         k = max(k_next, k + 1)
     return tuple(sorted(times))
+
+
+def meter_bracket(shoot: Callable[[int, float], np.ndarray], config: SessionConfig,
+                  mask_for: Callable[[tuple[int, int]], np.ndarray | None] = lambda shape: None,
+                  ) -> tuple[tuple[float, ...], dict]:
+    """Meter a scene and decide its auto bracket.
+
+    ``shoot(i, time_s)`` takes metering frame ``i`` and returns it decoded (1.0 =
+    saturation).  The first frame is at ``meter_time_s``; while any sample in the
+    mask is clipped, the next is ``METER_STEP_STOPS`` shorter (at most
+    ``METER_MAX_SHOTS``).  The dark end is read from the first (longest) frame,
+    the bright end from the last.  Returns ``(times, info)`` with ``info`` =
+    ``{"e_lo", "e_hi", "clipped"}`` (electrons per second, clipped fraction left).
+    """
+    plan, cam = config.plan, config.rig.camera
+    t, e_lo, e_hi, clipped = plan.meter_time_s, None, None, 0.0
+    for i in range(METER_MAX_SHOTS):
+        frame = shoot(i, t)
+        lo, e_hi, clipped = meter_range(frame, t, cam.full_well_e, mask_for(frame.shape[:2]))
+        e_lo = lo if e_lo is None else e_lo
+        if clipped == 0.0 or t <= MIN_TIME_S:
+            break
+        t = max(t / 2.0**METER_STEP_STOPS, MIN_TIME_S)
+    times = auto_bracket(e_lo, e_hi, full_well_e=cam.full_well_e, read_noise_e=cam.read_noise_e,
+                         target_snr=plan.target_snr, base_time_s=plan.meter_time_s, stop_step=plan.stop_step,
+                         max_exposures=plan.max_exposures)
+    return times, {"e_lo": e_lo, "e_hi": e_hi, "clipped": clipped}

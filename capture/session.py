@@ -27,19 +27,12 @@ from typing import Callable, Iterator
 import numpy as np
 
 from capture.config import ConfigError, SessionConfig, stored_session_config
-from capture.plan import Plan, Shot, auto_bracket, build_plan, meter_range, shot_key
+from capture.plan import Plan, build_plan, meter_bracket, shot_key
 from capture.store import DiskFullError, SessionStore
 
 __all__ = ["run_session", "resume_session", "open_rig", "completed_shots", "frame_mask", "RAW_SUBDIR"]
 
 RAW_SUBDIR = "raw"
-#: Metering steps down by this many stops while the metering frame has clipped pixels.
-METER_STEP_STOPS = 4
-METER_MAX_SHOTS = 3
-#: Fraction of clipped pixels (in the probe/sample discs) above which metering steps down.
-METER_CLIP_FRACTION = 0.0
-
-
 @contextlib.contextmanager
 def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
     """Connect the configured turntable and camera; yield ``(turntable, camera)``, disconnect on exit.
@@ -192,26 +185,19 @@ class _Runner:
                 k in self.done for k in rec["meter_keys"]
             ):
                 return tuple(rec["times"])
-        from hdr.raw import decode_raw
+        from hdr.raw import read_frame
 
-        plan, cam = self.cfg.plan, self.cfg.rig.camera
         self._move(angle)
-        t, keys, e_lo, e_hi = plan.meter_time_s, [], None, None
-        for i in range(METER_MAX_SHOTS):
+        keys = []
+
+        def shoot(i: int, t: float) -> np.ndarray:
             key = shot_key(scene, angle, "m", i)
             rel = self.done.get(key) or self._shoot(key, t, "meter", scene, angle)
             keys.append(key)
-            frame = decode_raw(self.store.root / rel)
-            lo, hi, clipped = meter_range(frame, t, cam.full_well_e, frame_mask(frame.shape[:2], self.cfg))
-            e_lo = lo if e_lo is None else e_lo  # the longest frame measures the dark end best
-            e_hi = hi
-            if clipped <= METER_CLIP_FRACTION:
-                break
-            t /= 2.0**METER_STEP_STOPS
-        times = auto_bracket(e_lo, e_hi, full_well_e=cam.full_well_e, read_noise_e=cam.read_noise_e,
-                             target_snr=plan.target_snr, base_time_s=plan.meter_time_s, stop_step=plan.stop_step,
-                             max_exposures=plan.max_exposures)
-        self.store.append("bracket", scene=scene, meter_keys=keys, times=list(times), e_lo=e_lo, e_hi=e_hi)
+            return read_frame(self.store.root / rel)[0]
+
+        times, info = meter_bracket(shoot, self.cfg, lambda shape: frame_mask(shape, self.cfg))
+        self.store.append("bracket", scene=scene, meter_keys=keys, times=list(times), **info)
         return times
 
     # -------------------------------------------------------------------------------- the run

@@ -146,24 +146,22 @@ class SimulatedCamera:
 
     @staticmethod
     def _write_tiff(path: Path, rgb16: np.ndarray, t: float, iso: float, f: float) -> Path:
-        """16-bit RGB TIFF with EXIF exposure tags, written to a temporary name then renamed."""
-        import OpenImageIO as oiio
+        """16-bit RGB TIFF with the exposure tags (EXIF numbering, in IFD0), via a temporary name + rename."""
+        from fractions import Fraction
 
-        tmp = path.with_name(f".{path.name}.part.tif")
-        spec = oiio.ImageSpec(rgb16.shape[1], rgb16.shape[0], 3, oiio.UINT16)
-        spec.attribute("ExposureTime", float(t))
-        spec.attribute("FNumber", float(f))
-        spec.attribute("Exif:ISOSpeedRatings", int(round(iso)))
-        spec.attribute("Make", "brdfrig")
-        spec.attribute("Model", "SimulatedCamera")
-        out = oiio.ImageOutput.create(str(tmp))
+        import tifffile
+
+        def rational(x: float) -> tuple[int, int]:
+            q = Fraction(x).limit_denominator(1_000_000)
+            return q.numerator, q.denominator
+
+        tags = [(33434, "2I", 1, rational(t), True),  # ExposureTime
+                (33437, "2I", 1, rational(f), True),  # FNumber
+                (34855, "H", 1, int(round(iso)), True),  # ISOSpeedRatings
+                (271, "s", 0, "brdfrig", True), (272, "s", 0, "SimulatedCamera", True)]
+        tmp = path.with_name(f".{path.name}.part")
         try:
-            if out is None or not out.open(str(tmp), spec) or not out.write_image(rgb16):
-                raise OSError(f"cannot write {path}: {oiio.geterror()}")
-        finally:
-            if out is not None:
-                out.close()
-        try:
+            tifffile.imwrite(tmp, rgb16, photometric="rgb", extratags=tags, metadata=None)
             os.replace(tmp, path)
         finally:
             if tmp.exists():

@@ -265,21 +265,21 @@ class GrblTurntable:
                 raise DeviceRefused("turntable is not homed (position unknown): home it before moving")
             target = self._quantise(float(angle_deg))
             start = self._position
+            loaded = self._loaded_positive  # is the gear play taken up on the + side at ``start``?
             self._position = None
+            self._loaded_positive = False
             try:
                 for _ in range(self.retries + 1):
-                    if self.backlash_deg > 0 and (
-                        start is None or target < start - self._tolerance or not self._loaded_positive
-                    ):
+                    if self.backlash_deg > 0 and (start is None or target < start - self._tolerance or not loaded):
                         margin = max(2.0 / self.steps_per_degree, 0.1 * self.backlash_deg)
                         reached, start = self._move_verified(start, self._quantise(target - self.backlash_deg - margin))
-                        if not reached:
+                        if not reached:  # idle somewhere else (a corrupted command), play side unknown
+                            loaded = False
                             continue
-                        self._loaded_positive = True
                     reached, start = self._move_verified(start, target)
                     if reached:
                         break
-                    self._loaded_positive = False  # idle somewhere else: a corrupted command; re-approach
+                    loaded = False  # idle somewhere else, arrived from either side: approach again
                 else:
                     raise DeviceRefused(
                         f"controller stays idle at {start:.4f} deg instead of {target:.4f} deg "
@@ -479,7 +479,11 @@ class GrblTurntable:
         raise DeviceTimeout(f"could not confirm the turntable at {target:.4f} deg in time")
 
     def _halt(self) -> None:
-        """Feed hold, wait for the hold to complete, soft reset; keep the position only if it is confirmed."""
+        """Feed hold, wait for the hold to complete, soft reset.
+
+        The position is kept only when confirmed idle and the gear has no play
+        (stopped mid-move, the table may sit anywhere within the play).
+        """
         self._position = None
         self._loaded_positive = False
         self.link.write(gp.FEED_HOLD)
@@ -495,11 +499,11 @@ class GrblTurntable:
         status = self._status()
         if status.state == "Alarm":
             self._forget()
-        elif status.state == "Idle" and self._homed:
+        elif status.state != "Idle":
+            raise DeviceRefused(f"controller is in state {status.state!r} after a stop")
+        elif self._homed and self.backlash_deg == 0:  # with play, the table is only known within the play
             if self._confirm_idle_at(status.mpos, time.monotonic() + self.reply_timeout_s * (self.retries + 1)):
                 self._position = status.mpos
-        else:
-            raise DeviceRefused(f"controller is in state {status.state!r} after a stop")
 
     def _halt_quietly(self) -> None:
         """Best-effort stop on an error path: never raises; an unreachable controller is closed and forgotten."""

@@ -43,8 +43,8 @@ env_height = 16
 probe_env_height = 32
 blemishes = 0
 [plan]
-scene_angles = [0.0, 120.0, 240.0]
-exposure = [0.004, 0.032, 0.256]
+scene_angles = [0.0, 180.0]
+exposure = [0.004, 0.064]
 [plan.probe]
 circle = [28.75, 30.0, 22.5]
 albedo = 0.6
@@ -98,7 +98,7 @@ def _shots(store: SessionStore) -> dict[str, str]:
 def _fit(out: Path) -> dict:
     from capture.pipeline import run_pipeline
 
-    result = run_pipeline(out, progress=False, echo=lambda text: None)
+    result = run_pipeline(out, progress=False, echo=lambda text: None, figures=False)
     return {s.name: s.brdf.to_dict() for s in result.samples}
 
 
@@ -112,7 +112,7 @@ def test_sigkill_at_random_points_then_resume(tmp_path):
     assert p.exitcode == 0
     ref_store = SessionStore.open(ref)
     ref_shots = _shots(ref_store)
-    assert len(ref_shots) == 9
+    assert len(ref_shots) == 4
     n_records = _journal_records(ref)
     rng = np.random.default_rng(20261122)
     landed = {"before the session existed": 0, "mid-session": 0, "after completion": 0}

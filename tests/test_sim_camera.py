@@ -97,7 +97,7 @@ def test_tiff_with_nonlinear_response(bench, tmp_path):
     path = cam.capture(tmp_path)
     assert path.suffix == ".tif"
     exp = read_exposure(path)
-    assert exp.time_s == pytest.approx(0.02) and exp.f_number == pytest.approx(8.0)
+    assert (exp.time_s, exp.f_number, exp.iso) == pytest.approx((0.02, 8.0, 100.0), rel=1e-6)
     frame, linear = read_frame(path)
     assert not linear
     truth = bench.radiance(0.0)
