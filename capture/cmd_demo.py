@@ -44,32 +44,28 @@ def register(subparsers) -> None:
 
 
 def _quick(config):
-    """A reduced copy of the demo session: 3 scenes, smaller frame, diffuse/lobe band limit 3."""
-    from dataclasses import replace
-
+    """A reduced copy of the demo session: half-size frame, coarser lighting, 4 scenes, lobe model at band limit 4."""
     from capture.config import session_config_from_dict
 
     d = config.to_dict()
-    d["rig"]["sim"] = {**d["rig"]["sim"], **d["rig"]["sim"].get("quick", {})} if False else d["rig"]["sim"]
+    scale = 0.5
+
+    def circle(c):
+        return [v * scale for v in c]
+
+    plan = {k: v for k, v in d["plan"].items() if k not in ("probe_rotations", "scenes") and v is not None}
+    plan["scene_angles"] = [0.0, 90.0, 180.0, 270.0]
+    plan["probe"] = {k: v for k, v in {**plan["probe"], "circle": circle(plan["probe"]["circle"])}.items()
+                     if v is not None}
+    plan["samples"] = [{"name": s["name"], "circle": circle(s["circle"])} for s in plan["samples"]]
     doc = {
         "session": {"name": d["name"] + "-quick", "notes": d["notes"]},
-        "rig": {**d["rig"], "sim": {**d["rig"]["sim"], "scale": 0.5}},
-        "plan": {**_plan_doc(d["plan"], scale=0.5), "scene_angles": [0.0, 120.0, 240.0]},
-        "fit": {**d["fit"], "lmax": 3, "pmax": 3},
+        "rig": {**d["rig"], "sim": {**d["rig"]["sim"], "scale": d["rig"]["sim"].get("scale", 1.0) * scale,
+                                    "env_height": 32}},
+        "plan": plan,
+        "fit": {**d["fit"], "model": "lobe", "lmax": 4, "pmax": 4},
     }
-    return replace(session_config_from_dict(doc, f"{config.source} (--quick)"))
-
-
-def _plan_doc(plan: dict, scale: float) -> dict:
-    def circle(c):
-        return None if c is None else [c[0] * scale, c[1] * scale, c[2] * scale]
-
-    out = {k: v for k, v in plan.items() if k not in ("probe_rotations", "scenes") and v is not None}
-    out["exposure"] = list(plan["exposure"]) if plan["exposure"] != "auto" else "auto"
-    out["probe"] = {k: v for k, v in {**plan["probe"], "circle": circle(plan["probe"]["circle"])}.items()
-                    if v is not None}
-    out["samples"] = [{"name": s["name"], "circle": circle(s["circle"])} for s in plan["samples"]]
-    return out
+    return session_config_from_dict(doc, f"{config.source} (--quick)")
 
 
 def relighting_errors(config, samples, *, echo=print) -> list[dict]:

@@ -37,6 +37,7 @@ def register(subparsers) -> None:
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--figure", default=None, help="also write a PNG: each scene's image, the fit's rendering and the residual")
     p.add_argument("-o", "--output", required=True, help="output BRDF file (JSON)")
     p.set_defaults(func=run)
 
@@ -91,6 +92,7 @@ def _probe_environment(path, lmax: int, circle=None):
 
 
 def _sample_scene(env, image_path, circle):
+    """(Scene, circle used, image shape, (rows, cols) of the sphere pixels)."""
     import numpy as np
 
     from fit.scene import Scene
@@ -106,7 +108,45 @@ def _sample_scene(env, image_path, circle):
     circle = check_circle_in_frame(img.shape, circle, what=f"{image_path}: sphere circle")
     px = sphere_pixels(img.shape, circle)
     radiance = np.asarray(img, np.float64)[px.rows, px.cols]
-    return Scene(env, px.normals, radiance, px.weights), circle
+    return Scene(env, px.normals, radiance, px.weights), circle, img.shape, (px.rows, px.cols)
+
+
+def write_figure(path, scenes, shapes, pixels, brdf) -> None:
+    """PNG (atomic): per scene, observed sphere, the fitted BRDF's rendering, and the relative residual."""
+    import os
+    import tempfile
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, axes = plt.subplots(len(scenes), 3, figsize=(9, 3 * len(scenes)), squeeze=False)
+    for k, (scene, shape, (rows, cols)) in enumerate(zip(scenes, shapes, pixels)):
+        pred = brdf.predict(scene.env, scene.normals)
+        scale = np.percentile(scene.radiance, 99) or 1.0
+        for j, values in enumerate((scene.radiance, pred)):
+            img = np.zeros(shape[:2] + (3,))
+            img[rows, cols] = np.broadcast_to(values, (len(rows), 3)) if values.shape[1] == 1 else values[:, :3]
+            axes[k, j].imshow(np.clip(img / scale, 0, 1) ** (1 / 2.2))
+        res = np.zeros(shape[:2])
+        res[rows, cols] = np.linalg.norm(pred - scene.radiance, axis=1) / np.maximum(np.linalg.norm(scene.radiance, axis=1), 1e-12 * scale)
+        im = axes[k, 2].imshow(res, cmap="magma", vmin=0, vmax=max(float(np.percentile(res[rows, cols], 99)), 1e-6))
+        fig.colorbar(im, ax=axes[k, 2], fraction=0.046)
+        for j, title in enumerate(("observed", f"fit ({brdf.model})", "relative residual")):
+            axes[k, j].set_title(f"scene {k}: {title}", fontsize=9)
+            axes[k, j].axis("off")
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(prefix=".fit-figure.", suffix=".png", dir=os.path.dirname(os.path.abspath(path)))
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=100, format="png")
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def run(args) -> int:
@@ -124,15 +164,17 @@ def run(args) -> int:
         raise OSError(f"-o {out}: directory {out.parent} does not exist")
     circle = None if args.circle is None else parse_circle(args.circle)
     probe_circle = None if args.probe_circle is None else parse_circle(args.probe_circle, "--probe-circle")
-    scenes, inputs = [], []
+    scenes, inputs, shapes, pixels = [], [], [], []
     for kind, pairs in (("latlong", args.scene), ("probe", args.probe_scene)):
         for env_path, image_path in pairs:
             if kind == "latlong":
                 env = latlong_environment(env_path, args.lmax)
             else:
                 env = _probe_environment(env_path, args.lmax, probe_circle)
-            scene, used = _sample_scene(env, image_path, circle)
+            scene, used, shape, px = _sample_scene(env, image_path, circle)
             scenes.append(scene)
+            shapes.append(shape)
+            pixels.append(px)
             inputs.append({"lighting": str(env_path), "lighting_kind": kind, "image": str(image_path), "circle": list(used)})
 
     result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress)
@@ -156,4 +198,7 @@ def run(args) -> int:
         print(f"warning: {w}", file=sys.stderr)
     save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]})
     print(f"wrote {out}")
+    if args.figure:
+        write_figure(args.figure, scenes, shapes, pixels, result.brdf)
+        print(f"wrote {args.figure}")
     return 0

@@ -151,17 +151,33 @@ def mark_clipped_neighbourhood(frame: np.ndarray, clip: float = CLIP_LEVEL) -> n
     return out
 
 
+def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float) -> MergedFrame:
+    """Merge one bracket of camera files (exposure times from their metadata) with ``hdr.merge.merge_bracket``.
+
+    Clipped neighbourhoods are marked first (:func:`mark_clipped_neighbourhood`);
+    ``usable`` is False where every exposure was dark or saturated.
+    """
+    from hdr.merge import FLAG_DARK, FLAG_SATURATED, merge_bracket
+    from hdr.raw import read_exposure, read_frame
+
+    frames = [mark_clipped_neighbourhood(read_frame(p)[0]) for p in paths]
+    times = [read_exposure(p).time_s for p in paths]
+    merged = merge_bracket(frames, times, saturation=1.0, clip_threshold=CLIP_LEVEL, full_well=full_well_e,
+                           read_noise=read_noise_e)
+    usable = (merged.flags != FLAG_DARK) & (merged.flags != FLAG_SATURATED)
+    return MergedFrame(merged.radiance, usable)
+
+
 def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool = True
                  ) -> dict[tuple[int, float], MergedFrame]:
     """Merge every (scene, angle) bracket, reusing ``DIR/cache`` entries keyed by content hash."""
     from tqdm import tqdm
 
     from hdr.exr import read_exr, write_exr
-    from hdr.merge import FLAG_DARK, FLAG_SATURATED, merge_bracket
-    from hdr.raw import read_exposure, read_frame
 
     cam = config.rig.camera
-    settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "version": MERGE_CACHE_VERSION, "clip": CLIP_LEVEL}
+    settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "clip": CLIP_LEVEL,
+                "version": MERGE_CACHE_VERSION}
     out = {}
     groups = _exposure_files(store)
     for (scene, angle), files in tqdm(groups.items(), desc="merge brackets", unit="frame", file=sys.stderr,
@@ -177,14 +193,10 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
                 continue
             except (ValueError, OSError, KeyError):
                 pass  # unreadable cache entry: merge again and replace it
-        frames = [mark_clipped_neighbourhood(read_frame(store.root / rel)[0]) for rel, _ in files]
-        times = [read_exposure(store.root / rel).time_s for rel, _ in files]
-        merged = merge_bracket(frames, times, saturation=1.0, full_well=cam.full_well_e,
-                               read_noise=cam.read_noise_e)
-        usable = (merged.flags != FLAG_DARK) & (merged.flags != FLAG_SATURATED)
-        write_exr(cache, merged.radiance, extra_channels={"usable": usable.astype(np.float32)},
+        merged = merge_files([store.root / rel for rel, _ in files], cam.full_well_e, cam.read_noise_e)
+        write_exr(cache, merged.radiance, extra_channels={"usable": merged.usable.astype(np.float32)},
                   attributes={"brdfrig_cache_key": key})
-        out[(scene, angle)] = MergedFrame(merged.radiance, usable)
+        out[(scene, angle)] = merged
     return out
 
 

@@ -206,10 +206,13 @@ class _Runner:
         if self.cfg.rig.carries == "rig" or self.prompt is None:
             return True
         what = "check the bench is as it was for" if resumed else "set up (move the bench or change the lights) for"
-        answer = self.prompt(
-            f"\n{what} scene {scene + 1}/{self.plan.n_scenes}, then press Enter (q + Enter to stop; "
-            f"`brdfrig capture resume {self.store.root}` continues later): "
-        )
+        try:
+            answer = self.prompt(
+                f"\n{what} scene {scene + 1}/{self.plan.n_scenes}, then press Enter (q + Enter to stop; "
+                f"`brdfrig capture resume {self.store.root}` continues later): "
+            )
+        except EOFError:  # no operator (stdin closed): pause rather than assume the scene is set up
+            answer = "q"
         if answer.strip().lower() in ("q", "quit", "stop"):
             return False
         self.store.append("scene_ready", scene=scene)

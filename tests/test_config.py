@@ -43,9 +43,11 @@ def test_shipped_configs_load():
         if f.name.startswith("fit-"):
             load_fit_preset(f)
         elif f.name.startswith("rig-"):
-            continue
+            cfg = load_session_config(CONFIG_DIR / "sim-bench.toml", rig_path=f)
+            assert cfg.rig.camera.backend != "sim" and f.name in cfg.source
         else:
             load_session_config(f)
+    assert {"fit-quick.toml", "fit-full.toml", "rig-bench.toml"} <= {f.name for f in files}
 
 
 def test_sim_bench_has_enough_scenes_for_the_full_model():

@@ -63,3 +63,57 @@ def test_dry_run_prints_the_plan(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "scenes: 2 (the operator sets up each scene" in r.stdout and "8 shots" in r.stdout
     assert not (tmp_path / "out").exists()
+
+
+TINY = """
+[rig]
+carries = "rig"
+[rig.turntable]
+backend = "sim"
+speed_deg_s = 90.0
+[rig.camera]
+backend = "sim"
+[rig.sim]
+scale = 0.25
+env_height = 16
+probe_env_height = 32
+[plan]
+scene_angles = [0.0, 90.0, 180.0, 270.0]
+exposure = [0.004, 0.064]
+[plan.probe]
+circle = [28.75, 30.0, 22.5]
+[[plan.samples]]
+name = "matte"
+circle = [80.0, 30.0, 22.5]
+"""
+
+
+def test_ctrl_c_stops_cleanly_and_resume_finishes(tmp_path):
+    import json
+    import signal
+    import time
+
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(TINY)
+    out = tmp_path / "s"
+    p = subprocess.Popen([sys.executable, "-m", "capture", "capture", "run", str(plan), "--out", str(out),
+                          "--no-fit", "--no-progress"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    deadline = time.monotonic() + 60
+    journal = out / "journal.jsonl"
+    while time.monotonic() < deadline and (not journal.exists() or b'"moved"' not in journal.read_bytes()[-400:]):
+        time.sleep(0.01)
+    p.send_signal(signal.SIGINT)  # the table is moving 90 degrees at 90 deg/s: Ctrl-C lands mid-move or mid-shot
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert err.strip().endswith("brdfrig: interrupted")
+    records = [json.loads(line) for line in journal.read_text().splitlines()]
+    assert records[-1]["event"] == "stop" and records[-1]["status"] == "interrupted"
+    assert "turntable stopped" in records[-1]["reason"]
+    r = brdfrig("capture", "resume", out, "--no-fit", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert "session complete: " in r.stdout
+    from capture.store import SessionStore
+
+    store = SessionStore.open(out)
+    assert store.verify().passed and sum(e.get("kind") == "exposure" for e in store.files.values()) == 8

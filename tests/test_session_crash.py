@@ -78,6 +78,18 @@ def _child(plan: str, out: str, resume: bool) -> None:
         os._exit(code)
 
 
+def _preload() -> None:
+    """Import what a session process needs once, before forking (imports start no threads; numba kernels
+    are not run here, so the children's OpenMP runtime starts fresh after the fork)."""
+    import capture.pipeline  # noqa: F401
+    import capture.session  # noqa: F401
+    import hdr.dng  # noqa: F401
+    import hdr.raw  # noqa: F401
+    import rig.grbl_sim  # noqa: F401
+    import rig.sim_camera  # noqa: F401
+    import rig.turntable  # noqa: F401
+
+
 def _start(plan: Path, out: Path, resume: bool):
     p = multiprocessing.get_context("fork").Process(target=_child, args=(str(plan), str(out), resume))
     p.start()
@@ -106,6 +118,7 @@ def _fit(out: Path) -> dict:
 def test_sigkill_at_random_points_then_resume(tmp_path):
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
+    _preload()
     ref = tmp_path / "ref"
     p = _start(plan, ref, resume=False)
     p.join(120)
