@@ -34,8 +34,6 @@ def _disc(shape, circle) -> np.ndarray:
 
 def compare_plans(scale: float = 0.5, repeats: int = 3, seed: int = 0) -> list[dict]:
     """Shoot, merge and score both plans on both scenes; one dict per (scene, plan) with medians over repeats."""
-    from dataclasses import replace
-
     from capture.cmd_demo import DEMO_CONFIG
     from capture.config import load_session_config
     from capture.pipeline import merge_files

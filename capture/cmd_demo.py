@@ -68,7 +68,7 @@ def _quick(config):
     return session_config_from_dict(doc, f"{config.source} (--quick)")
 
 
-def relighting_errors(config, samples, *, echo=print) -> list[dict]:
+def relighting_errors(config, samples) -> list[dict]:
     """Relight each fitted sample under the bench's held-out lighting; compare with its true BRDF.
 
     Returns one dict per sample: ``name``, ``kind`` (diffuse|glossy), ``error`` (relative RMS), ``target``.
@@ -77,10 +77,10 @@ def relighting_errors(config, samples, *, echo=print) -> list[dict]:
 
     from capture.pipeline import relative_rms
     from fit.groundtruth import render_groundtruth
+    from capture.session import sim_bench
     from hdr.sphere import sphere_pixels
-    from rig.sim_bench import SimBench
 
-    bench = SimBench(**config.rig.sim, carries=config.rig.carries)
+    bench = sim_bench(config)
     env = bench.heldout_environment()
     px = sphere_pixels((SCORE_SIZE, SCORE_SIZE), (SCORE_SIZE / 2, SCORE_SIZE / 2, SCORE_SIZE / 2))
     keep = px.weights > 0
@@ -116,7 +116,7 @@ def run(args) -> int:
     status, store = run_session(config, out, prompt=None, progress=not args.no_progress, echo=echo)
     echo(f"captured {len(store.files)} files in {time.monotonic() - t0:.0f} s")
     result = run_pipeline(out, progress=not args.no_progress, echo=echo)
-    rows = relighting_errors(config, result.samples, echo=echo)
+    rows = relighting_errors(config, result.samples)
     echo("\nrelighting under a lighting the fit never saw, against the simulator's true BRDF:")
     echo(f"  {'sample':<12} {'kind':<8} {'model':<12} {'error':>8} {'target':>8}")
     ok = True

@@ -10,6 +10,7 @@ the difference images are on the scale of the image itself.
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -81,8 +82,6 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)

@@ -303,12 +303,29 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
         result.samples.append(SampleResult(name, res.brdf, report, brdf_path, figure_path, stats))
         stats_all["samples"][name] = {**stats, "brdf": brdf_path.name, "figure": figure_path and figure_path.name,
                                       "report": _jsonable(report)}
-        echo(f"  {name}: model {res.brdf.model}, image error {100 * stats['self_relative_rms_mean']:.2f}% "
+        if not result.samples[:-1] and report.get("identifiability_summary"):
+            echo(report["identifiability_summary"])  # depends on the lighting only: the same for every sample
+        echo(f"  {name}: {_fit_summary(report)}; image error {100 * stats['self_relative_rms_mean']:.2f}% "
              f"(relative RMS over {len(scenes)} scene(s)) -> {brdf_path}")
+        for warning in report.get("warnings", []):
+            echo(f"  {name}: warning: {warning}")
     atomic_write_bytes(results_dir / "stats.json", json.dumps(_jsonable(stats_all), indent=1).encode())
     store.append("fit", results=str(results_dir.relative_to(store.root)), fit=stats_all["fit"],
                  samples={k: v["model"] for k, v in stats_all["samples"].items()})
     return result
+
+
+def _fit_summary(report: dict) -> str:
+    """One line from a ``fit_brdf`` report: chosen model and why, rank and condition number."""
+    chosen = report.get("chosen_model", "?")
+    text = f"model {chosen} ({report.get('reason', '')})"
+    cand = report.get("candidates", {}).get(chosen, {})
+    rank, cond = cand.get("rank"), cand.get("condition_number")
+    if rank is not None and cand.get("unknowns") is not None:
+        text += f", rank {min(np.atleast_1d(rank))} of {cand['unknowns']} unknowns"
+    if cond is not None:
+        text += f", condition number {max(np.atleast_1d(cond)):.3g}"
+    return text
 
 
 def _jsonable(obj):

@@ -32,6 +32,10 @@ __all__ = ["detect_sphere", "refine_circle", "SphereNotFoundError"]
 _HOUGH_MAX_DIM = 480  # coarse search image size (pixels)
 _HOUGH_MIN_RADIUS = 12  # smallest radius worth searching after downscaling (pixels)
 _MIN_CONTRAST = 0.1  # smallest log-luminance step across 2 px that counts as the rim (10%)
+_RIM_HALF_WIDTH = 2.0  # half width (px) of the annulus the final rim model is fitted over
+_SECTOR_ARC = 8.0  # arc length (px) of one rim sector with its own radiance model
+_MAX_SECTORS = 256  # sectors used at most (evenly spread), bounding the cost at large radii
+_SS = 4  # sub-samples per pixel side for the rim model's coverage integrals
 
 
 class SphereNotFoundError(ValueError):
@@ -138,29 +142,9 @@ def _fit_circle(pts: np.ndarray, start) -> np.ndarray:
     return least_squares(resid, np.asarray(start, float), loss="soft_l1", f_scale=0.3).x
 
 
-def refine_circle(image: np.ndarray, circle, *, n_rays: int | None = None, iterations: int = 3
-                  ) -> tuple[float, float, float]:
-    """Refine an approximate sphere circle (within ~2 px) to sub-pixel accuracy.
-
-    Parameters
-    ----------
-    image : (H, W) or (H, W, C) array
-        Linear image (any units).
-    circle : (cx, cy, r)
-        Approximate circle, pixel coordinates (MATH.md).
-    n_rays : int, optional
-        Rays across the rim (default: about one per pixel of circumference,
-        between 180 and 2048).
-    iterations : int
-        Refinement passes.
-
-    Returns
-    -------
-    (cx, cy, r) : floats
-    """
-    lum = _luminance(image)
+def _ray_refine(lum: np.ndarray, circle, n_rays: int, iterations: int) -> tuple[float, float, float]:
+    """Ray-profile refinement of a rough circle (within a few px) to a few tenths of a pixel."""
     cx, cy, r = (float(v) for v in circle)
-    n_rays = n_rays or int(np.clip(2 * np.pi * r, 180, 2048))
     band = max(4.0, 0.04 * r)
     for _ in range(iterations):
         pts, contrast = _edge_points(lum, (cx, cy, r), n_rays, band)
@@ -180,6 +164,157 @@ def refine_circle(image: np.ndarray, circle, *, n_rays: int | None = None, itera
         cx, cy, r = (float(v) for v in q)
         band = 3.0
     return cx, cy, r
+
+
+def _rim_pixels(shape, circle):
+    """Pixels within ``_RIM_HALF_WIDTH`` of ``circle``, grouped by rim sector.
+
+    Returns rows, cols (N,) int sorted by sector, the sector start offsets (S,),
+    and each pixel's position within its sector (-0.5 .. 0.5).  At large radii
+    only ``_MAX_SECTORS`` evenly spread sectors are kept (plenty for 3 parameters).
+    """
+    h, w = shape
+    cx, cy, r = circle
+    n_all = max(16, int(2 * np.pi * r / _SECTOR_ARC))
+    reach = r + _RIM_HALF_WIDTH + 1
+    x0, x1 = max(0, int(cx - reach)), min(w, int(np.ceil(cx + reach)))
+    y0, y1 = max(0, int(cy - reach)), min(h, int(np.ceil(cy + reach)))
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    sel = np.abs(np.hypot(xx + 0.5 - cx, yy + 0.5 - cy) - r) < _RIM_HALF_WIDTH
+    rows, cols = yy[sel], xx[sel]
+    u = (np.arctan2(rows + 0.5 - cy, cols + 0.5 - cx) % (2 * np.pi)) / (2 * np.pi) * n_all
+    sec = np.minimum(u.astype(int), n_all - 1)
+    kept = np.zeros(n_all, bool)
+    kept[np.linspace(0, n_all, min(n_all, _MAX_SECTORS), endpoint=False).astype(int)] = True
+    m = kept[sec]
+    order = np.argsort(sec[m], kind="stable")
+    rows, cols, sec, pos = rows[m][order], cols[m][order], sec[m][order], (u - sec - 0.5)[m][order]
+    starts = np.nonzero(np.r_[True, sec[1:] != sec[:-1]])[0]
+    return rows, cols, starts, pos
+
+
+def _rim_design(rows, cols, pos, circle) -> np.ndarray:
+    """(N, 10) design matrix of the anti-aliased rim model of each pixel for ``circle``.
+
+    A pixel's value is the pixel-area integral of the ball radiance inside the
+    disc plus the background outside it.  Near the limb both a mirror ball's
+    reflected direction and a diffuse sphere's shading vary as ``sqrt(depth)``
+    (the normal's z component), so the ball side is ``a + b sqrt(s) + c s`` at
+    depth s (px) inside the outline and the background ``d + e t`` at distance
+    t outside; each coefficient varies linearly along the sector (``pos``).
+    The integrals are taken over ``_SS x _SS`` sub-samples of each pixel.
+    """
+    cx, cy, r = circle
+    off = (np.arange(_SS) + 0.5) / _SS
+    x = cols[:, None, None] + off[None, None, :]
+    y = rows[:, None, None] + off[None, :, None]
+    s = (r - np.hypot(x - cx, y - cy)).reshape(len(rows), -1)  # signed depth, > 0 inside
+    # each sub-sample's covered fraction ramps linearly across its width: the model (and so the fit's
+    # objective) is then continuous in the circle, where a 0/1 test per sub-sample would make it a staircase
+    cov = np.clip(s * _SS + 0.5, 0.0, 1.0)
+    si, so = np.maximum(s, 0.0), np.maximum(-s, 0.0)
+    base = np.stack([cov, cov * np.sqrt(si), cov * si, 1.0 - cov, (1.0 - cov) * so], axis=1).mean(axis=2)
+    return np.concatenate([base, base * pos[:, None]], axis=1)
+
+
+def _sector_solve(a: np.ndarray, v: np.ndarray, wt: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Weighted per-sector linear least squares: model values (N,) of the best coefficients in each sector."""
+    aw = a * wt[:, None]
+    gram = np.add.reduceat(aw[:, :, None] * aw[:, None, :], starts, axis=0)
+    rhs = np.add.reduceat(aw * (v * wt)[:, None], starts, axis=0)
+    ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2)[:, None, None] * np.eye(a.shape[1]) + 1e-300
+    coef = np.linalg.solve(gram + ridge, rhs[:, :, None])[:, :, 0]
+    counts = np.diff(np.r_[starts, len(v)])
+    return np.einsum("nk,nk->n", a, np.repeat(coef, counts, axis=0))
+
+
+def _model_refine(lum: np.ndarray, circle) -> tuple[float, float, float]:
+    """Fit the circle to the anti-aliased rim model of every pixel near the outline (variable projection).
+
+    The pixel set, sectors and weights are fixed at the starting circle (so the
+    objective is smooth in the circle); each sector's residuals are scaled by
+    its own contrast, so a dim stretch of rim counts as much as one next to a
+    lamp.  Pixels (speckles, a stand's edge) and whole sectors that the model
+    cannot explain are dropped and the fit repeated.
+    """
+    from scipy.optimize import least_squares
+
+    q = np.asarray(circle, float)
+    rows, cols, starts, pos = _rim_pixels(lum.shape, q)
+    v = lum[rows, cols].astype(float)
+    counts = np.diff(np.r_[starts, len(v)])
+    lo = np.minimum.reduceat(v, starts)
+    hi = np.maximum.reduceat(v, starts)
+    # relative contrast of each sector; sectors where ball and background match carry no edge
+    rel = (hi - lo) / np.maximum(np.abs(hi) + np.abs(lo), 1e-30)
+    good = np.repeat(rel > 0.05, counts)
+    wt = np.where(good, 1.0 / np.repeat(np.maximum(hi - lo, 1e-30), counts), 0.0)
+
+    def resid(p):
+        return (v - _sector_solve(_rim_design(rows, cols, pos, p), v, wt, starts)) * wt
+
+    for _ in range(3):
+        if np.count_nonzero(wt) < 0.3 * len(v):
+            raise SphereNotFoundError(f"no consistent sphere rim near circle ({q[0]:.1f}, {q[1]:.1f}, {q[2]:.1f})")
+        q = least_squares(resid, q, x_scale=0.1, diff_step=1e-4, xtol=1e-5, ftol=1e-6).x
+        res = np.abs(resid(q))
+        used = res[wt > 0]
+        scale = 1.4826 * np.median(used) + 1e-6
+        sector_rms = np.sqrt(np.add.reduceat(res ** 2, starts) / np.maximum(np.add.reduceat(wt > 0, starts), 1))
+        bad_sector = sector_rms > 3 * np.median(sector_rms[sector_rms > 0]) if np.any(sector_rms > 0) else sector_rms > 0
+        drop = (res > 6 * scale) | np.repeat(bad_sector, counts)
+        if not np.any(drop & (wt > 0)):
+            break
+        wt = np.where(drop, 0.0, wt)
+    return float(q[0]), float(q[1]), float(q[2])
+
+
+def refine_circle(image: np.ndarray, circle, *, n_rays: int | None = None, iterations: int = 3
+                  ) -> tuple[float, float, float]:
+    """Refine an approximate sphere circle (within a few px) to sub-pixel accuracy.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) array
+        Linear image (any units).
+    circle : (cx, cy, r)
+        Approximate circle, pixel coordinates (MATH.md).
+    n_rays : int, optional
+        Rays across the rim in the first stage (default: about one per pixel
+        of circumference, between 180 and 2048).
+    iterations : int
+        Ray-stage passes.
+
+    Returns
+    -------
+    (cx, cy, r) : floats
+
+    Raises
+    ------
+    SphereNotFoundError
+        When no rim is found, or the refined circle strays from ``circle`` by
+        more than the ray stage's search band.
+    """
+    from scipy.ndimage import median_filter
+
+    lum = _luminance(image)
+    cx, cy, r = (float(v) for v in circle)
+    n_rays = n_rays or int(np.clip(2 * np.pi * r, 180, 2048))
+    # the ray stage runs on a 3x3 median of the image: isolated hot pixels or speckles outside the ball
+    # would otherwise be taken for its outermost edge (the final model fit rejects them itself)
+    h, w = lum.shape
+    reach = r + max(4.0, 0.04 * r) + 8
+    x0, y0 = max(0, int(cx - reach)), max(0, int(cy - reach))
+    x1, y1 = min(w, int(np.ceil(cx + reach))), min(h, int(np.ceil(cy + reach)))
+    crop = median_filter(lum[y0:y1, x0:x1], size=3, mode="nearest")
+    rx, ry, rr = _ray_refine(crop, (cx - x0, cy - y0, r), n_rays, iterations)
+    fx, fy, fr = _model_refine(lum, (rx + x0, ry + y0, rr))
+    tol = max(5.0, 0.1 * r)  # how far a rough (Hough) circle may be off
+    if max(abs(fx - cx), abs(fy - cy), abs(fr - r)) > tol or max(abs(fx - rx - x0), abs(fy - ry - y0),
+                                                                 abs(fr - rr)) > 1.5:
+        raise SphereNotFoundError(f"no consistent sphere rim near circle ({cx:.1f}, {cy:.1f}, {r:.1f}): "
+                                  f"refinement moved to ({fx:.1f}, {fy:.1f}, {fr:.1f})")
+    return fx, fy, fr
 
 
 def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None = None
