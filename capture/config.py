@@ -431,7 +431,7 @@ def _parse_plan(raw: dict, source: str, carries: str, turntable_backend: str) ->
                 f"key 'probe_rotations' in [plan] of {source}: with carries = \"rig\" the probe turns with the "
                 "camera, so its rotations cannot move its blemishes; use scene_angles (one angle per scene)"
             )
-        cfg = PlanConfig(**{**asdict_shallow(cfg), "scenes": len(angles), "scene_angles": angles})
+        cfg = PlanConfig(**{**_fields(cfg), "scenes": len(angles), "scene_angles": angles})
     elif cfg.scene_angles is not None:
         raise ConfigError(
             f"key 'scene_angles' in [plan] of {source} needs carries = \"rig\" in [rig]; with carries = \"samples\" "
@@ -444,7 +444,7 @@ def _parse_plan(raw: dict, source: str, carries: str, turntable_backend: str) ->
     return cfg
 
 
-def asdict_shallow(obj) -> dict:
+def _fields(obj) -> dict:
     """Field values of a dataclass instance, not recursing into nested dataclasses."""
     return {f: getattr(obj, f) for f in obj.__dataclass_fields__}
 

@@ -209,10 +209,12 @@ def _rim_design(rows, cols, pos, circle) -> np.ndarray:
     x = cols[:, None, None] + off[None, None, :]
     y = rows[:, None, None] + off[None, :, None]
     s = (r - np.hypot(x - cx, y - cy)).reshape(len(rows), -1)  # signed depth, > 0 inside
-    # each sub-sample's covered fraction ramps linearly across its width: the model (and so the fit's
-    # objective) is then continuous in the circle, where a 0/1 test per sub-sample would make it a staircase
+    # each sub-sample's covered fraction ramps linearly across its width and its covered part's mean depth
+    # goes smoothly to 0 with it: the model (and so the fit's objective) is then smooth in the circle, where
+    # a 0/1 test per sub-sample would make it a staircase and sqrt(depth) would put a cusp at each crossing
     cov = np.clip(s * _SS + 0.5, 0.0, 1.0)
-    si, so = np.maximum(s, 0.0), np.maximum(-s, 0.0)
+    si = np.where(cov < 1, cov / (2 * _SS), s)  # mean depth of the covered part
+    so = np.where(cov > 0, (1 - cov) / (2 * _SS), -s)  # mean distance of the uncovered part
     base = np.stack([cov, cov * np.sqrt(si), cov * si, 1.0 - cov, (1.0 - cov) * so], axis=1).mean(axis=2)
     return np.concatenate([base, base * pos[:, None]], axis=1)
 

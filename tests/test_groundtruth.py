@@ -75,8 +75,8 @@ def test_white_furnace_matches_scipy(model, theta_o):
     dirs, omega = _hemisphere_rule(n, n_mu=96, n_phi=192)
     env = Environment(dirs, np.ones((len(dirs), 1)), omega)
     got = render_groundtruth(model, n[None], env)[0, 0]
-    f = lambda dphi, ti: model.evaluate(ti, theta_o, dphi)[0] * math.cos(ti) * math.sin(ti)
-    expected = integrate.dblquad(f, 0.0, math.pi / 2, 0.0, 2 * math.pi, epsabs=1e-9, epsrel=1e-9)[0]
+    f = lambda x: model.evaluate(x[:, 0], theta_o, x[:, 1])[:, 0] * np.cos(x[:, 0]) * np.sin(x[:, 0])
+    expected = integrate.cubature(f, [0.0, 0.0], [math.pi / 2, 2 * math.pi], rtol=1e-9, atol=1e-9).estimate
     assert got == pytest.approx(expected, rel=1e-6)
 
 
