@@ -18,7 +18,20 @@ import importlib
 import os
 import sys
 
-COMMAND_MODULES: tuple[str, ...] = ("capture.cmd_capture", "capture.cmd_refit", "capture.cmd_demo", "capture.cmd_bench", "capture.cmd_merge", "capture.cmd_probe", "capture.cmd_envsh", "capture.cmd_fit", "capture.cmd_render", "capture.cmd_rig",)
+COMMAND_MODULES: tuple[str, ...] = (
+    # at the bench
+    "capture.cmd_demo",
+    "capture.cmd_rig",
+    "capture.cmd_capture",
+    "capture.cmd_refit",
+    # offline, one step at a time
+    "capture.cmd_merge",
+    "capture.cmd_probe",
+    "capture.cmd_envsh",
+    "capture.cmd_fit",
+    "capture.cmd_render",
+    "capture.cmd_bench",
+)
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130

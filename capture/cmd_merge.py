@@ -44,6 +44,11 @@ def register(subparsers) -> None:
                    help="linearisation of integer TIFF/JPEG frames: recover the response from the bracket "
                         "(auto for integer TIFF/JPEG), or take them as linear (default: %(default)s)")
     p.add_argument("--align", action="store_true", help="align frames by translation (median threshold bitmaps)")
+    p.add_argument("--clip-radius", type=int, default=1, metavar="PX",
+                   help="weight out every pixel within PX pixels of a pixel clipped in any channel: demosaicing "
+                        "spreads clipped values into neighbours that then read low (1 = bilinear demosaicing, as "
+                        "for raw files; 0 = frames not demosaiced; in-camera TIFF/JPEG may need 2) "
+                        "(default: %(default)s)")
     p.add_argument("--no-reestimate", action="store_true",
                    help="trust the nominal exposure times (no re-estimation from well-exposed overlap)")
     p.add_argument("--full-well", type=float, default=None, metavar="E",
@@ -81,6 +86,8 @@ def run(args) -> int:
     from hdr.response import linearize, recover_response
 
     files = list(args.files)
+    if args.clip_radius < 0:
+        raise ValueError(f"--clip-radius must be a non-negative number of pixels, got {args.clip_radius}")
     if args.output.suffix.lower() != ".exr":
         raise ValueError(f"output {args.output}: must be an .exr file")
     if not args.output.parent.is_dir():
@@ -117,8 +124,8 @@ def run(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res = merge_bracket(
-            frames, times, weighting=args.weighting, saturation=1.0, align=args.align,
-            reestimate_times=not args.no_reestimate, names=[str(f) for f in files],
+            frames, times, weighting=args.weighting, saturation=1.0, clip_radius=args.clip_radius,
+            align=args.align, reestimate_times=not args.no_reestimate, names=[str(f) for f in files],
             full_well=args.full_well or DEFAULT_FULL_WELL, read_noise=args.read_noise or DEFAULT_READ_NOISE,
         )
     for w in caught:
@@ -130,6 +137,7 @@ def run(args) -> int:
         "nominal_times_s": res.nominal_times.tolist(),
         "times_s": res.times.tolist(),
         "weighting": res.weighting,
+        "clip_radius_px": args.clip_radius,
         "response": response,
         "units": "frame full scale per second",
     }

@@ -127,43 +127,25 @@ def check_complete(store: SessionStore, config: SessionConfig) -> None:
 
 #: Frame value at or above which a demosaiced sample counts as clipped (``hdr.merge``'s default threshold).
 CLIP_LEVEL = 0.95
-
-
-def mark_clipped_neighbourhood(frame: np.ndarray, clip: float = CLIP_LEVEL) -> np.ndarray:
-    """Set every channel of the 3x3 neighbourhood of a clipped sample to full scale (1.0).
-
-    Bilinear demosaicing builds each pixel's missing colours from the 3x3
-    neighbouring Bayer sites: next to a clipped site, a channel can read well
-    below the clip level and still be wrong (a small bright light source
-    measured 0.53 in green at a pixel whose true green was 16x full scale).
-    Marking the neighbourhood as saturated makes ``hdr.merge.merge_bracket``
-    give those samples zero weight, so they come from shorter exposures.
-    Hand-written because it is a property of the demosaic step, not of the merge.
-    """
-    import cv2
-
-    clipped = (frame >= clip).any(axis=-1).astype(np.uint8)
-    if not clipped.any():
-        return frame
-    near = cv2.dilate(clipped, np.ones((3, 3), np.uint8)).astype(bool)
-    out = frame.copy()
-    out[near] = 1.0
-    return out
+#: Pixels within this radius of a clipped pixel are weighted out by the merge: the support of the bilinear
+#: demosaicing of ``hdr.raw.decode_raw`` (``hdr.merge.merge_bracket``'s ``clip_radius``).
+CLIP_RADIUS = 1
 
 
 def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float) -> MergedFrame:
     """Merge one bracket of camera files (exposure times from their metadata) with ``hdr.merge.merge_bracket``.
 
-    Clipped neighbourhoods are marked first (:func:`mark_clipped_neighbourhood`);
-    ``usable`` is False where every exposure was dark or saturated.
+    Pixels within ``CLIP_RADIUS`` of a clipped pixel are weighted out by the merge
+    (demosaicing spreads clipped values into them); ``usable`` is False where
+    every exposure was dark or saturated.
     """
     from hdr.merge import FLAG_DARK, FLAG_SATURATED, merge_bracket
     from hdr.raw import read_exposure, read_frame
 
-    frames = [mark_clipped_neighbourhood(read_frame(p)[0]) for p in paths]
+    frames = [read_frame(p)[0] for p in paths]
     times = [read_exposure(p).time_s for p in paths]
-    merged = merge_bracket(frames, times, saturation=1.0, clip_threshold=CLIP_LEVEL, full_well=full_well_e,
-                           read_noise=read_noise_e)
+    merged = merge_bracket(frames, times, saturation=1.0, clip_threshold=CLIP_LEVEL, clip_radius=CLIP_RADIUS,
+                           full_well=full_well_e, read_noise=read_noise_e)
     usable = (merged.flags != FLAG_DARK) & (merged.flags != FLAG_SATURATED)
     return MergedFrame(merged.radiance, usable)
 
@@ -177,7 +159,7 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
 
     cam = config.rig.camera
     settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "clip": CLIP_LEVEL,
-                "version": MERGE_CACHE_VERSION}
+                "clip_radius": CLIP_RADIUS, "version": MERGE_CACHE_VERSION}
     out = {}
     groups = _exposure_files(store)
     for (scene, angle), files in tqdm(groups.items(), desc="merge brackets", unit="frame", file=sys.stderr,

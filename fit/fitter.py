@@ -390,9 +390,11 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     info = candidates[chosen]
     cond = max(info.get("condition_number") or [0.0])
     if cond > COND_WARN:
+        remedies = "fewer bands or more scenes" if info.get("solver") == "tikhonov" else (
+            "try tikhonov, fewer bands or more scenes")
         warnings.append(
             f"{chosen}: condition number {cond:.3g} > {COND_WARN:g}: directions the lighting barely excites "
-            "may relight badly under other lighting (try tikhonov, fewer bands or more scenes)"
+            f"may relight badly under other lighting ({remedies})"
         )
     if chosen in fitted and not info["plausibility"]["plausible"]:
         warnings.append(

@@ -6,18 +6,31 @@ Two stages:
    8-bit, downscaled copy of the luminance.  Log compression makes a bright
    ball on a dark background and a dark ball on a bright one look alike and
    keeps clipped highlights from dominating.  Hough alone is good to 0.5-1 px.
-2. Refinement (hand-written, as OpenCV has no sub-pixel circle refinement):
-   along ``n_rays`` rays from the coarse centre the luminance profile is
-   sampled across the expected rim; each ray's rim is its outermost edge of
-   at least 10% contrast (reflections squeezed inside a chrome ball's rim and
-   clipped highlights make stronger edges further in), located where the
-   linear profile crosses halfway between the levels just inside and just
-   outside (the 50% area-coverage point of an anti-aliased edge); rays
-   without such an edge (a stand under the ball, a background matching the
-   rim) are dropped.
-   A robust geometric circle fit (``scipy.optimize.least_squares`` with a
-   soft-L1 loss, plus explicit outlier rejection) of the edge points gives
-   the circle; the refinement is repeated around the new circle.
+2. Ray stage (hand-written, as OpenCV has no sub-pixel circle refinement),
+   on a 3x3 median of the image so that isolated bright pixels or speckles
+   outside the ball are not taken for its edge: along ``n_rays`` rays from
+   the coarse centre the luminance profile is sampled across the expected
+   rim; each ray's rim is its outermost edge of at least 10% contrast
+   (reflections squeezed inside a chrome ball's rim and clipped highlights
+   make stronger edges further in), located where the linear profile crosses
+   halfway between the levels just inside and just outside; rays without
+   such an edge (a stand under the ball, a background matching the rim) are
+   dropped.  A robust geometric circle fit (soft-L1 loss plus outlier
+   rejection) of the edge points, repeated around the new circle, gives the
+   circle to a few tenths of a pixel.  The halfway rule is biased wherever
+   the ball's radiance changes across the last pixel (a chrome ball's rim
+   compresses tens of degrees of the room into it).
+3. Model stage: every pixel within ``_RIM_HALF_WIDTH`` of the circle is
+   fitted with the known anti-aliased disc profile -- the pixel-area integral
+   of the ball's radiance ``a + b sqrt(depth) + c depth`` inside the outline
+   (the limb behaviour of both a mirror ball's reflected direction and a
+   diffuse sphere's shading) plus a linear background outside it -- with the
+   radiance coefficients solved per rim sector by linear least squares and
+   the circle by ``scipy.optimize.least_squares`` (variable projection);
+   sectors without an edge or that the model cannot explain, and outlying
+   pixels, are dropped.  The answer must agree with the ray stage to 1.5 px
+   and with the coarse circle to ``max(5, 0.1 r)`` px, or the candidate is
+   rejected.
 
 Coordinates follow MATH.md: x = column, y = row (down), pixel (i, j) has its
 centre at (j + 0.5, i + 0.5).
@@ -31,7 +44,7 @@ __all__ = ["detect_sphere", "refine_circle", "SphereNotFoundError"]
 
 _HOUGH_MAX_DIM = 480  # coarse search image size (pixels)
 _HOUGH_MIN_RADIUS = 12  # smallest radius worth searching after downscaling (pixels)
-_MIN_CONTRAST = 0.1  # smallest log-luminance step across 2 px that counts as the rim (10%)
+_MIN_CONTRAST = 0.1  # smallest relative step from ball to background that counts as the rim (10%)
 _RIM_HALF_WIDTH = 2.0  # half width (px) of the annulus the final rim model is fitted over
 _SECTOR_ARC = 8.0  # arc length (px) of one rim sector with its own radiance model
 _MAX_SECTORS = 256  # sectors used at most (evenly spread), bounding the cost at large radii
@@ -219,25 +232,30 @@ def _rim_design(rows, cols, pos, circle) -> np.ndarray:
     return np.concatenate([base, base * pos[:, None]], axis=1)
 
 
-def _sector_solve(a: np.ndarray, v: np.ndarray, wt: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Weighted per-sector linear least squares: model values (N,) of the best coefficients in each sector."""
+def _sector_solve(a: np.ndarray, v: np.ndarray, wt: np.ndarray, starts: np.ndarray):
+    """Weighted per-sector linear least squares.
+
+    Returns the model values (N,) of each sector's best coefficients and those coefficients (S, K).
+    """
     aw = a * wt[:, None]
     gram = np.add.reduceat(aw[:, :, None] * aw[:, None, :], starts, axis=0)
     rhs = np.add.reduceat(aw * (v * wt)[:, None], starts, axis=0)
     ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2)[:, None, None] * np.eye(a.shape[1]) + 1e-300
     coef = np.linalg.solve(gram + ridge, rhs[:, :, None])[:, :, 0]
     counts = np.diff(np.r_[starts, len(v)])
-    return np.einsum("nk,nk->n", a, np.repeat(coef, counts, axis=0))
+    return np.einsum("nk,nk->n", a, np.repeat(coef, counts, axis=0)), coef
 
 
 def _model_refine(lum: np.ndarray, circle) -> tuple[float, float, float]:
     """Fit the circle to the anti-aliased rim model of every pixel near the outline (variable projection).
 
     The pixel set, sectors and weights are fixed at the starting circle (so the
-    objective is smooth in the circle); each sector's residuals are scaled by
-    its own contrast, so a dim stretch of rim counts as much as one next to a
-    lamp.  Pixels (speckles, a stand's edge) and whole sectors that the model
-    cannot explain are dropped and the fit repeated.
+    objective is smooth in the circle); each sector's residuals are relative to
+    its own brightness, so a dim stretch of rim counts as much as one next to a
+    lamp.  Sectors whose fitted step from ball to background is under
+    ``_MIN_CONTRAST`` (a background matching the rim: no edge to locate),
+    sectors the model cannot explain (a stand, a reflection crossing the rim)
+    and single outlying pixels (speckles) are dropped and the fit repeated.
     """
     from scipy.optimize import least_squares
 
@@ -245,26 +263,23 @@ def _model_refine(lum: np.ndarray, circle) -> tuple[float, float, float]:
     rows, cols, starts, pos = _rim_pixels(lum.shape, q)
     v = lum[rows, cols].astype(float)
     counts = np.diff(np.r_[starts, len(v)])
-    lo = np.minimum.reduceat(v, starts)
-    hi = np.maximum.reduceat(v, starts)
-    # relative contrast of each sector; sectors where ball and background match carry no edge
-    rel = (hi - lo) / np.maximum(np.abs(hi) + np.abs(lo), 1e-30)
-    good = np.repeat(rel > 0.05, counts)
-    wt = np.where(good, 1.0 / np.repeat(np.maximum(hi - lo, 1e-30), counts), 0.0)
+    level = np.maximum(np.maximum.reduceat(np.abs(v), starts), 1e-30)
+    wt = np.repeat(1.0 / level, counts)
 
     def resid(p):
-        return (v - _sector_solve(_rim_design(rows, cols, pos, p), v, wt, starts)) * wt
+        return (v - _sector_solve(_rim_design(rows, cols, pos, p), v, wt, starts)[0]) * wt
 
-    for _ in range(3):
+    for _ in range(4):
         if np.count_nonzero(wt) < 0.3 * len(v):
             raise SphereNotFoundError(f"no consistent sphere rim near circle ({q[0]:.1f}, {q[1]:.1f}, {q[2]:.1f})")
         q = least_squares(resid, q, x_scale=0.1, diff_step=1e-4, xtol=1e-5, ftol=1e-6).x
-        res = np.abs(resid(q))
-        used = res[wt > 0]
-        scale = 1.4826 * np.median(used) + 1e-6
-        sector_rms = np.sqrt(np.add.reduceat(res ** 2, starts) / np.maximum(np.add.reduceat(wt > 0, starts), 1))
-        bad_sector = sector_rms > 3 * np.median(sector_rms[sector_rms > 0]) if np.any(sector_rms > 0) else sector_rms > 0
-        drop = (res > 6 * scale) | np.repeat(bad_sector, counts)
+        model, coef = _sector_solve(_rim_design(rows, cols, pos, q), v, wt, starts)
+        res = np.abs(v - model) * wt
+        used = np.add.reduceat(wt > 0, starts)
+        sector_rms = np.sqrt(np.add.reduceat(res ** 2, starts) / np.maximum(used, 1))
+        no_edge = np.abs(coef[:, 0] - coef[:, 3]) < _MIN_CONTRAST * level  # ball and background levels at the rim
+        misfit = sector_rms > 3 * np.median(sector_rms[used > 0])
+        drop = np.repeat(no_edge | misfit, counts) | (res > 6 * 1.4826 * np.median(res[wt > 0]) + 1e-9)
         if not np.any(drop & (wt > 0)):
             break
         wt = np.where(drop, 0.0, wt)
@@ -294,8 +309,8 @@ def refine_circle(image: np.ndarray, circle, *, n_rays: int | None = None, itera
     Raises
     ------
     SphereNotFoundError
-        When no rim is found, or the refined circle strays from ``circle`` by
-        more than the ray stage's search band.
+        When no rim is found, or the answer strays from ``circle`` by more
+        than ``max(5, 0.1 r)`` px or from the ray stage's circle by 1.5 px.
     """
     from scipy.ndimage import median_filter
 

@@ -7,7 +7,15 @@ import warnings
 import numpy as np
 import pytest
 
-from hdr.merge import FLAG_DARK, FLAG_SATURATED, SaturationWarning, align_frames, estimate_times, merge_bracket
+from hdr.merge import (
+    FLAG_DARK,
+    FLAG_SATURATED,
+    SaturationWarning,
+    align_frames,
+    clipped_neighbourhood,
+    estimate_times,
+    merge_bracket,
+)
 
 FULL_WELL, READ_NOISE = 20000.0, 5.0
 TIMES = 2.0 ** np.arange(-6, 1)  # 7 exposures, 1 stop apart: 1/64 .. 1 s
@@ -17,6 +25,8 @@ def radiance_image(h=160, w=240, seed=0):
     """Log-uniform radiance over 1e5:1, 6e-4 .. 60 frame units per second, every pixel independent.
 
     At 1 s the faintest pixel collects 12 electrons (read noise 5); at 1/64 s the brightest is 0.94 of full scale.
+    Not demosaiced: a clipped pixel does not bias its neighbours, so the merges below use ``clip_radius=0``
+    (with 1, a third of the 1 s frame's pixels clip and almost every pixel has a clipped neighbour).
     """
     rng = np.random.default_rng(seed)
     return np.exp(rng.uniform(np.log(6e-4), np.log(60.0), (h, w, 3)))
@@ -41,7 +51,7 @@ def test_merge_beats_opencv_and_variance_is_calibrated():
     frames = bracket(x)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SaturationWarning)  # a few pixels at the top may clip
-        res = merge_bracket(frames, TIMES, full_well=FULL_WELL, read_noise=READ_NOISE)
+        res = merge_bracket(frames, TIMES, clip_radius=0, full_well=FULL_WELL, read_noise=READ_NOISE)
     assert res.radiance.shape == x.shape and res.radiance.dtype == np.float32
     ok = res.flags == 0
     assert ok.mean() > 0.999
@@ -67,8 +77,9 @@ def test_noise_optimal_weights_beat_debevec_hat():
     frames = bracket(x, seed=3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SaturationWarning)
-        opt = merge_bracket(frames, TIMES, full_well=FULL_WELL, read_noise=READ_NOISE)
-        hat = merge_bracket(frames, TIMES, weighting="debevec", full_well=FULL_WELL, read_noise=READ_NOISE)
+        opt = merge_bracket(frames, TIMES, clip_radius=0, full_well=FULL_WELL, read_noise=READ_NOISE)
+        hat = merge_bracket(frames, TIMES, clip_radius=0, weighting="debevec", full_well=FULL_WELL,
+                            read_noise=READ_NOISE)
     ok = (opt.flags == 0) & (hat.flags == 0)
 
     def rms(res, sel):
@@ -92,11 +103,11 @@ def test_reestimation_recovers_a_3_percent_error_in_a_nominal_time():
     frames = bracket(x, seed=5)
     nominal = TIMES.copy()
     nominal[4] *= 1.03  # the camera reports 3% too long an exposure for frame 4
-    est = estimate_times(frames, nominal, saturation=65535)
+    est = estimate_times(frames, nominal, saturation=65535, clip_radius=0)
     assert np.abs(est / TIMES - 1).max() < 0.003, est / TIMES
-    fixed = merge_bracket(frames, nominal)
+    fixed = merge_bracket(frames, nominal, clip_radius=0)
     assert np.abs(fixed.times / TIMES - 1).max() < 0.003
-    naive = merge_bracket(frames, nominal, reestimate_times=False)
+    naive = merge_bracket(frames, nominal, clip_radius=0, reestimate_times=False)
     # Pixels whose best frame is frame 4 are 3% low without re-estimation, right with it.
     sel = (fixed.flags == 0) & (x * TIMES[4] > 0.3) & (x * TIMES[4] < 0.6)
     assert abs(np.median(naive.radiance[sel] / x[sel]) - 1) > 0.008
@@ -107,7 +118,7 @@ def test_consistent_times_are_kept():
     x = radiance_image(seed=6)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SaturationWarning)  # the brightest few pixels may clip at 1/64 s
-        res = merge_bracket(bracket(x, seed=7), TIMES)
+        res = merge_bracket(bracket(x, seed=7), TIMES, clip_radius=0)
     assert np.array_equal(res.times, TIMES) and np.array_equal(res.nominal_times, TIMES)
 
 
@@ -116,7 +127,7 @@ def test_saturated_everywhere_warns_and_flags():
     x[:4, :4] = 500.0  # saturates even the 1/64 s frame
     frames = bracket(x, seed=9)
     with pytest.warns(SaturationWarning, match=r"48 pixel-channels .* saturated in every frame"):
-        res = merge_bracket(frames, TIMES)
+        res = merge_bracket(frames, TIMES, clip_radius=0)
     assert np.all(res.flags[:4, :4] == FLAG_SATURATED)
     assert np.count_nonzero(res.flags == FLAG_SATURATED) == 48
     # A lower bound: full scale over the shortest time.
@@ -134,7 +145,7 @@ def test_black_everywhere_is_flagged_dark_and_uses_longest_exposure():
         f[20, 20, 1] = 0
     with warnings.catch_warnings():
         warnings.simplefilter("error", SaturationWarning)
-        res = merge_bracket(frames, TIMES)
+        res = merge_bracket(frames, TIMES, clip_radius=0)
     assert np.all(res.flags[10:12, 10:12] == FLAG_DARK)
     assert np.all(res.radiance[10:12, 10:12] == 0) and np.all(res.variance[10:12, 10:12] > 0)
     assert res.flags[20, 20, 1] == 0 and res.radiance[20, 20, 1] == pytest.approx(30 / 65535, rel=1e-4)
@@ -178,3 +189,107 @@ def test_bad_brackets_are_clear_errors():
         merge_bracket([a, bad], [1, 2])
     with pytest.raises(ValueError, match="no frames"):
         merge_bracket([], [])
+
+
+def test_clipped_neighbourhood_covers_every_channel_within_the_radius():
+    frame = np.full((6, 7, 3), 0.3, np.float32)
+    frame[2, 3, 1] = 0.97  # green alone reaches the clip level
+    frame[5, 0] = np.nan  # no data is not clipped
+    expected = np.zeros((6, 7), bool)
+    expected[1:4, 2:5] = True
+    np.testing.assert_array_equal(clipped_neighbourhood(frame, 0.95, 1), expected)
+    expected[0:5, 1:6] = True
+    np.testing.assert_array_equal(clipped_neighbourhood(frame, 0.95, 2), expected)
+    assert np.count_nonzero(clipped_neighbourhood(frame, 0.95, 0)) == 1
+    assert not clipped_neighbourhood(frame, 0.98, 1).any()
+    assert clipped_neighbourhood((np.nan_to_num(frame[:, :, 1]) * 65535).astype(np.uint16), 0.95 * 65535, 1).sum() == 9
+
+
+def _decode_mosaic(path, rgb):
+    """Write the RGGB mosaic of ``rgb`` (fraction of full scale, clipped at 1) as a 14-bit DNG and decode it."""
+    from hdr.dng import write_dng
+    from hdr.raw import decode_raw
+
+    black, white = 256, 16383
+    raw = black + np.clip(rgb, 0, 1) * (white - black)
+    cfa = np.empty(raw.shape[:2])
+    cfa[0::2, 0::2] = raw[0::2, 0::2, 0]
+    cfa[0::2, 1::2] = raw[0::2, 1::2, 1]
+    cfa[1::2, 0::2] = raw[1::2, 0::2, 1]
+    cfa[1::2, 1::2] = raw[1::2, 1::2, 2]
+    write_dng(path, np.round(cfa).astype(np.uint16), black_level=black, white_level=white, exposure_time_s=1.0,
+              f_number=8.0, iso=100)
+    return decode_raw(path)
+
+
+def small_lights_bracket(directory):
+    """Small lights at 16x full scale per second next to an unclipped backdrop, as demosaiced DNG frames.
+
+    Noiseless (bias only), 14-bit.  Returns the DNG paths, their times, the decoded frames and the truth: demosaicing
+    is linear, so the true demosaiced radiance is the decode of the unclipped mosaic scaled below full scale, scaled
+    back up (an oracle that does not involve the merge).
+    """
+    h, w = 32, 40
+    x = np.full((h, w, 3), 0.4) * np.array([1.0, 0.8, 0.6]) * np.linspace(0.7, 1.3, w)[None, :, None]
+    x[9:11, 9:11] = 16.0  # a white 2x2 light
+    x[20:23, 24:27] = [16.0, 2.0, 0.5]  # a red 3x3 light: only one channel clips
+    times = [1 / 64, 1 / 16, 1 / 4, 1.0]  # the lights clip at 1/16 s and longer
+    paths = [directory / f"f{k}.dng" for k in range(len(times))]
+    frames = [_decode_mosaic(path, x * t) for path, t in zip(paths, times)]
+    scale = 0.9 / x.max()
+    truth = _decode_mosaic(directory / "truth.dng", x * scale) / scale
+    return paths, times, frames, truth
+
+
+def test_clipped_small_light_merges_to_the_true_radiance_with_clip_radius_1(tmp_path):
+    _, times, frames, truth = small_lights_bracket(tmp_path)
+    assert (frames[-1] >= 0.95).any(axis=2).sum() >= 10 and (frames[0] < 0.95).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SaturationWarning)  # the 1/64 s frame sees every pixel unclipped
+        rel = {r: np.abs(merge_bracket(frames, times, clip_radius=r).radiance / truth - 1) for r in (0, 1)}
+    bad0 = rel[0] > 0.02
+    print(f"max relative error: clip_radius=0 {rel[0].max():.3f} ({bad0.sum()} pixel-channels > 2%), "
+          f"clip_radius=1 {rel[1].max():.5f}")
+    assert rel[1].max() < 0.02
+    assert rel[0].max() > 0.3 and bad0.sum() >= 20  # the demosaiced rim of the lights reads far too low
+
+
+def test_merge_command_clip_radius_option(tmp_path, capsys):
+    from capture.cli import main
+    from hdr.exr import read_exr
+
+    paths, times, _, truth = small_lights_bracket(tmp_path)
+    args = ["merge", *map(str, paths), "--times", ",".join(map(str, times))]
+    for radius in (0, 1):
+        out = tmp_path / f"r{radius}.exr"
+        assert main([*args, "--clip-radius", str(radius), "-o", str(out)]) == 0
+        rgb, _, attributes = read_exr(out)
+        assert attributes["clip_radius_px"] == radius
+        rel = np.abs(rgb / truth - 1).max()
+        assert (rel < 0.02) if radius else (rel > 0.3), (radius, rel)
+    assert main([*args, "--clip-radius", "-1", "-o", str(tmp_path / "bad.exr")]) == 2
+    assert "--clip-radius must be a non-negative" in capsys.readouterr().err
+    assert not (tmp_path / "bad.exr").exists()
+
+
+def test_any_channel_rule_survives_a_colour_matrix(tmp_path):
+    # Camera TIFF/JPEG frames are demosaiced, then colour-converted: a clipped camera channel corrupts every output
+    # channel of its neighbours.  Merging each channel alone applies a same-channel rule, which misses that.
+    x = np.full((24, 24, 3), 0.4) * np.array([1.0, 0.8, 0.6])
+    x[9:12, 9:12] = [16.0, 3.0, 1.0]  # a saturated red light: only camera red clips at 1/16 s and 1/4 s
+    times = [1 / 64, 1 / 16, 1 / 4, 1.0]
+    to_srgb = np.array([[1.6, -0.5, -0.1], [-0.2, 1.5, -0.3], [0.0, -0.4, 1.4]])  # a typical camera-to-sRGB matrix
+    frames = [np.clip(_decode_mosaic(tmp_path / f"f{k}.dng", x * t) @ to_srgb.T, 0, 1) for k, t in enumerate(times)]
+    scale = 0.9 / x.max()
+    truth = _decode_mosaic(tmp_path / "truth.dng", x * scale) / scale @ to_srgb.T
+    ok = np.repeat((truth > 0.05).all(axis=2, keepdims=True), 3, axis=2)  # frames clipped at 0 hold no negatives
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SaturationWarning)
+        any_channel = merge_bracket(frames, times, clip_radius=1).radiance
+        same_channel = np.concatenate(
+            [merge_bracket([f[:, :, c:c + 1] for f in frames], times, clip_radius=1).radiance for c in range(3)], axis=2)
+    rel_any, rel_same = np.abs(any_channel / truth - 1)[ok], np.abs(same_channel / truth - 1)[ok]
+    print(f"max relative error: any channel {rel_any.max():.4f}, same channel {rel_same.max():.3f} "
+          f"({np.count_nonzero(rel_same > 0.02)} pixel-channels > 2%)")
+    assert rel_any.max() < 0.02
+    assert rel_same.max() > 0.5 and np.count_nonzero(rel_same > 0.02) >= 5

@@ -9,7 +9,6 @@ import pytest
 
 from capture.config import load_session_config
 from capture.pipeline import (
-    mark_clipped_neighbourhood,
     merge_frames,
     open_verified,
     relative_rms,
@@ -112,12 +111,3 @@ def test_refit_reuses_merges_and_never_overwrites_results(session):
     brdf, report = load_brdf(a.brdf_path)
     assert brdf.to_dict() == a.brdf.to_dict()
 
-
-def test_clipped_neighbourhood_is_marked():
-    frame = np.full((5, 6, 3), 0.3, np.float32)
-    frame[2, 3, 1] = 0.97
-    out = mark_clipped_neighbourhood(frame)
-    expected = frame.copy()
-    expected[1:4, 2:5] = 1.0
-    np.testing.assert_array_equal(out, expected)
-    assert mark_clipped_neighbourhood(np.full((3, 3, 3), 0.5, np.float32)).max() == 0.5
