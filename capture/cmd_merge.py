@@ -9,8 +9,9 @@ from the bracket itself (Debevec & Malik), unless ``--response linear``.
 
 The output EXR holds the radiance as R,G,B (frame units per second), its
 variance as ``variance.R/G/B``, the per-pixel merge flags as ``flags``
-(0 ok, 1 black in every frame, 2 saturated in every frame) and the exposure
-provenance as ``brdfrig:`` attributes.
+(0 ok, 1 black in every frame, 2 saturated, or within ``--clip-radius`` of a
+clipped pixel, in every frame) and the exposure provenance as ``brdfrig:``
+attributes.
 """
 
 from __future__ import annotations

@@ -158,8 +158,8 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
         p0 = b * _BLOCK
         p1 = min(p0 + _BLOCK, npix)
         # Gather the block of every frame once, normalised (contiguous reads, one tuple dispatch per frame).
+        # A sample near a clipped pixel is gathered as +inf: weighted out like a saturated one.
         zb = np.empty((nfr, p1 - p0, nch), np.float32)
-        okb = np.ones((nfr, p1 - p0), np.bool_)
         for k in range(nfr):
             fk = frames[k]
             for p in range(p0, p1):
@@ -168,7 +168,8 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
             if use_near:
                 nk = near[k]
                 for p in range(p0, p1):
-                    okb[k, p - p0] = not nk[p]
+                    if nk[p]:
+                        zb[k, p - p0, :] = np.inf
         for q in range(p1 - p0):
             p = p0 + q
             for c in range(nch):
@@ -177,7 +178,7 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
                 den = 0.0
                 for k in range(nfr):
                     z = zb[k, q, c]
-                    if z > lo and z < hi and okb[k, q]:
+                    if z > lo and z < hi:
                         w = z - lo if z <= mid else hi - z
                         num += w * z * inv_t[k]
                         den += w
@@ -186,7 +187,7 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
                     best = -1
                     for k in range(nfr):
                         z = zb[k, q, c]
-                        if z == z and z < hi and okb[k, q] and (best < 0 or times[k] > times[best]):
+                        if z == z and z < hi and (best < 0 or times[k] > times[best]):
                             best = k
                     if best >= 0:
                         x = max(zb[best, q, c], 0.0) * inv_t[best]
@@ -197,7 +198,7 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
                         for k in range(nfr):
                             if best < 0 or times[k] < times[best]:
                                 best = k
-                        x = zb[best, q, c] * inv_t[best]
+                        x = np.float32(frames[best][p, c] * inv_sat) * inv_t[best]  # the value, not the +inf mark
                         out_rad[p, c] = x
                         out_var[p, c] = x * x
                         out_flag[p, c] = 2
@@ -210,7 +211,7 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
                         xs = max(x, 0.0) * inv_well
                         for k in range(nfr):
                             z = zb[k, q, c]
-                            if z > lo and z < hi and okb[k, q]:
+                            if z > lo and z < hi:
                                 # u = t / Var(z_k) = w_k / t_k, Var(z_k) = x t / well + read_var, w_k = t^2 / Var
                                 u = 1.0 / (xs + read_var * inv_t[k])
                                 num += u * z  # sum w_k (z_k / t_k)
@@ -222,7 +223,7 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
                     acc = 0.0
                     for k in range(nfr):
                         z = zb[k, q, c]
-                        if z > lo and z < hi and okb[k, q]:
+                        if z > lo and z < hi:
                             w = z - lo if z <= mid else hi - z
                             acc += w * w * (xs * times[k] * inv_well + read_var) * inv_t[k] * inv_t[k]
                     var = acc / (den * den)
