@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -65,6 +64,7 @@ def _procedural(rows: int):
 def run(args) -> int:
     import numpy as np
 
+    from capture.store import atomic_write_bytes
     from fit.bench import FULL, QUICK, format_solver_comparison, format_table, plot_pareto, rows_to_json, run_benchmark
     from hdr.sphere import sphere_pixels
 
@@ -106,8 +106,6 @@ def run(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     png = plot_pareto(result, args.out / "bench.png")
     out_json = args.out / "bench.json"
-    tmp = out_json.with_name(f".{out_json.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(rows_to_json(result), indent=1))
-    os.replace(tmp, out_json)
+    atomic_write_bytes(out_json, json.dumps(rows_to_json(result), indent=1).encode())
     print(f"\nwrote {png} and {out_json}", file=sys.stdout)
     return 0

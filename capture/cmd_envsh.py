@@ -9,9 +9,7 @@ the sphere, relative to the map's RMS).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 DEFAULT_BANDS = (5, 15, 35)
@@ -60,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fit.shproject import project_latlong, reconstruct_latlong, sh_window
     from hdr.envmap import latlong_directions
+    from capture.figures import save_png
     from hdr.exr import read_image
 
     bands = parse_bands(args.bands)
@@ -103,16 +102,7 @@ def run(args: argparse.Namespace) -> int:
         ax.set_visible(False)
     fig.suptitle(f"{Path(args.env).name}: spherical-harmonic reconstructions (same exposure)", fontsize=11)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".png", dir=out.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=100)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    finally:
-        plt.close(fig)
+    save_png(fig, out)
     for lmax, err in zip(bands, errors):
         print(f"l <= {lmax:3d}: relative RMS error {100 * err:6.2f}%")
     print(f"wrote {out}")

@@ -113,14 +113,13 @@ def _sample_scene(env, image_path, circle):
 
 def write_figure(path, scenes, shapes, pixels, brdf) -> None:
     """PNG (atomic): per scene, observed sphere, the fitted BRDF's rendering, and the relative residual."""
-    import os
-    import tempfile
-
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+
+    from capture.figures import save_png
 
     fig, axes = plt.subplots(len(scenes), 3, figsize=(9, 3 * len(scenes)), squeeze=False)
     for k, (scene, shape, (rows, cols)) in enumerate(zip(scenes, shapes, pixels)):
@@ -138,15 +137,7 @@ def write_figure(path, scenes, shapes, pixels, brdf) -> None:
             axes[k, j].set_title(f"scene {k}: {title}", fontsize=9)
             axes[k, j].axis("off")
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=".fit-figure.", suffix=".png", dir=os.path.dirname(os.path.abspath(path)))
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=100, format="png")
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_png(fig, path)
 
 
 def run(args) -> int:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["fit_figure", "tone_map"]
+__all__ = ["fit_figure", "save_png", "tone_map"]
 
 
 def tone_map(rgb: np.ndarray, scale: float) -> np.ndarray:
@@ -53,8 +53,6 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from capture.store import atomic_write_bytes
-
     rows, cols = np.asarray(pixels.rows), np.asarray(pixels.cols)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     shape = (int(r1 - r0), int(c1 - c0))
@@ -82,7 +80,18 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
+    return save_png(fig, path, dpi=90)
+
+
+def save_png(fig, path: str | Path, *, dpi: int = 100) -> Path:
+    """Render a matplotlib figure to PNG, write it atomically (never a partial file) and close the figure."""
+    import matplotlib.pyplot as plt
+
+    from capture.store import atomic_write_bytes
+
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
+    try:
+        fig.savefig(buf, format="png", dpi=dpi)
+    finally:
+        plt.close(fig)
     return atomic_write_bytes(path, buf.getvalue())

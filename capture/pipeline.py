@@ -33,6 +33,7 @@ import numpy as np
 
 from capture.config import FitPreset, SessionConfig, stored_session_config
 from capture.store import SessionStore, atomic_write_bytes
+from fit.brdffile import jsonable
 
 __all__ = [
     "MergedFrame",
@@ -284,14 +285,14 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
                        title=f"{name}: {res.brdf.model} fit, lmax {fit.lmax}, {len(scenes)} scene(s)")
         result.samples.append(SampleResult(name, res.brdf, report, brdf_path, figure_path, stats))
         stats_all["samples"][name] = {**stats, "brdf": brdf_path.name, "figure": figure_path and figure_path.name,
-                                      "report": _jsonable(report)}
+                                      "report": jsonable(report)}
         if not result.samples[:-1] and report.get("identifiability_summary"):
             echo(report["identifiability_summary"])  # depends on the lighting only: the same for every sample
         echo(f"  {name}: {_fit_summary(report)}; image error {100 * stats['self_relative_rms_mean']:.2f}% "
              f"(relative RMS over {len(scenes)} scene(s)) -> {brdf_path}")
         for warning in report.get("warnings", []):
             echo(f"  {name}: warning: {warning}")
-    atomic_write_bytes(results_dir / "stats.json", json.dumps(_jsonable(stats_all), indent=1).encode())
+    atomic_write_bytes(results_dir / "stats.json", json.dumps(jsonable(stats_all), indent=1).encode())
     store.append("fit", results=str(results_dir.relative_to(store.root)), fit=stats_all["fit"],
                  samples={k: v["model"] for k, v in stats_all["samples"].items()})
     return result
@@ -308,20 +309,3 @@ def _fit_summary(report: dict) -> str:
     if cond is not None:
         text += f", condition number {max(np.atleast_1d(cond)):.3g}"
     return text
-
-
-def _jsonable(obj):
-    """Convert numpy scalars/arrays (and tuples) inside ``obj`` to plain JSON types."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    if isinstance(obj, (str, int, float, bool)) or obj is None:
-        return obj
-    return str(obj)

@@ -63,6 +63,9 @@ _PROVIDERS: dict[str, str] = {
     "lobe": "fit.models",
     "full": "fit.models",
     "microfacet": "fit.microfacet",
+    "lambertian": "fit.analytic",
+    "blinn_phong": "fit.analytic",
+    "ggx": "fit.analytic",
 }
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from fit.brdf import FittedBRDF, brdf_from_dict
 
-__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "save_brdf", "load_brdf"]
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf"]
 
 FORMAT_NAME = "brdfrig-brdf"
 FORMAT_VERSION = 1
@@ -43,19 +43,21 @@ CONVENTIONS = {
 }
 
 
-def _jsonable(obj):
-    """Convert numpy scalars/arrays (and non-finite floats) to plain JSON values."""
+def jsonable(obj):
+    """Convert numpy scalars/arrays, non-finite floats (as text) and other objects (as text) to plain JSON values."""
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
+        return jsonable(obj.tolist())
     if isinstance(obj, np.generic):
-        return _jsonable(obj.item())
+        return jsonable(obj.item())
     if isinstance(obj, float) and not np.isfinite(obj):
         return str(obj)
-    return obj
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    return str(obj)  # paths and other objects in a report or provenance: their text
 
 
 def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: dict | None = None) -> Path:
@@ -70,10 +72,10 @@ def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: di
     doc = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
-        "brdf": _jsonable(brdf.to_dict()),
+        "brdf": jsonable(brdf.to_dict()),
         "conventions": CONVENTIONS,
-        "report": _jsonable(report or {}),
-        "provenance": _jsonable(
+        "report": jsonable(report or {}),
+        "provenance": jsonable(
             {"writer": "brdfrig fit.brdffile", "written_utc": _dt.datetime.now(_dt.timezone.utc).isoformat()}
             | (provenance or {})
         ),

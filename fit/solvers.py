@@ -12,11 +12,20 @@ Solvers (``../shared/docs/MATH.md`` pitfalls 4-5):
 
 ``paper``     the seed's band-by-band normal equations (one block Gauss-Seidel
               sweep over bands, each band solved against the residual of the
-              previous ones) -- the baseline.  Its Gram matrix is ``R^T R`` (= ``A^T A``).
+              previous ones) -- the baseline.  Its Gram matrix is ``R^T R`` (= ``A^T A``);
+              its reported condition number is that of the whole (column-equilibrated)
+              Gram matrix ``A^T A`` it works from, i.e. the square of ``joint``'s, not
+              of the per-band blocks (1 by construction for one-unknown bands).
 ``joint``     all bands at once from the SVD of the column-equilibrated ``R``:
               truncated (minimum-norm) where the numerical rank is below n.
 ``tikhonov``  ``min |A x - b|^2 + lam^2 |D (x - x0)|^2`` with ``D`` the column norms
-              of ``A`` and ``lam`` minimising generalised cross-validation (GCV).
+              of ``A`` and ``lam`` minimising generalised cross-validation (GCV)
+              over ``[lam_min, 1] * s_max`` (``lam_min`` = 1e-12 unless given).
+              With millions of pixel rows GCV ~ residual / rows^2 and, on
+              noise-free data, picks the smallest lambda on its grid; a prior
+              fit (``full+prior``) therefore passes a floor (``lam_min``) so
+              that directions excited below that fraction of the strongest one
+              stay at the prior instead of amplifying model error.
 
 All accept a prior ``x0``: they then solve for ``x - x0`` against ``b - A x0``,
 so directions the data do not determine stay at the prior.  Rank and
@@ -27,9 +36,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
-__all__ = ["RANK_RTOL", "SOLVERS", "StreamedQR", "Solution", "solve", "numerical_rank"]
+__all__ = ["RANK_RTOL", "LAM_GRID_MIN", "PROBE_DAMPING", "probe_solution", "SOLVERS", "StreamedQR", "Solution", "solve", "numerical_rank"]
 
 RANK_RTOL = 1e-9
 """Singular values below ``RANK_RTOL * s_max`` of the column-equilibrated system count as zero."""
@@ -68,11 +79,12 @@ class StreamedQR:
         if nb == 0:
             return
         sw = np.sqrt(np.asarray(weights, dtype=np.float64))
-        block = np.empty((self.channels, nb, self.n + 1))
-        block[:, :, : self.n] = np.moveaxis(design * sw[:, None, None], 2, 0)
-        block[:, :, self.n] = (radiance * sw[:, None]).T
-        stacked = np.concatenate([self._r, block], axis=1)
-        self._r = np.linalg.qr(stacked, mode="r")[:, : self.n + 1, :]
+        k = self.n + 1
+        stacked = np.empty((self.channels, k + nb, k))  # [R; sqrt(w) [A | b]], written in place (one pass)
+        stacked[:, :k, :] = self._r
+        np.multiply(np.moveaxis(design, 2, 0), sw[None, :, None], out=stacked[:, k:, : self.n])
+        np.multiply(np.asarray(radiance).T, sw[None, :], out=stacked[:, k:, self.n])
+        self._r = np.linalg.qr(stacked, mode="r")[:, :k, :]
         self.rows += int(np.count_nonzero(sw))
 
     @property
@@ -103,7 +115,7 @@ class Solution:
         Numerical rank used (column-equilibrated, :data:`RANK_RTOL`).
     cond : (C,) float
         2-norm condition number of the column-equilibrated system (inf if singular);
-        for ``paper`` that of the worst band's normal-equation matrix.
+        for ``paper`` that of the column-equilibrated normal-equation matrix ``A^T A`` (inf if singular).
     residual : (C,) float
         Weighted residual sum of squares ``|sqrt(w)(A x - b)|^2``.
     lam : (C,) float or None
@@ -138,7 +150,13 @@ def _joint(r: np.ndarray, z: np.ndarray, rtol: float) -> tuple[np.ndarray, int, 
     return y / d, k, float(cond)
 
 
-def _tikhonov(r: np.ndarray, z: np.ndarray, outside: float, rows: int, rtol: float) -> tuple[np.ndarray, int, float, float]:
+LAM_GRID_MIN = 1e-12
+"""Smallest Tikhonov lambda (relative to the largest singular value) GCV considers by default."""
+
+
+def _tikhonov(
+    r: np.ndarray, z: np.ndarray, outside: float, rows: int, rtol: float, lam_min: float = LAM_GRID_MIN
+) -> tuple[np.ndarray, int, float, float]:
     rs, d = _equilibrate(r)
     u, s, vt = np.linalg.svd(rs)
     k = numerical_rank(s, rtol)
@@ -147,7 +165,8 @@ def _tikhonov(r: np.ndarray, z: np.ndarray, outside: float, rows: int, rtol: flo
         return np.zeros(r.shape[1]), 0, float(cond), 0.0
     beta = u.T @ z
     s2 = s * s
-    grid = s[0] * np.logspace(-12, 0, 121)
+    lo = math.log10(min(max(lam_min, LAM_GRID_MIN), 1.0))
+    grid = s[0] * np.logspace(lo, 0, max(2, int(round(-10 * lo)) + 1))
     best, best_lam = np.inf, grid[0]
     for lam in grid:
         f = s2 / (s2 + lam * lam)
@@ -166,7 +185,6 @@ def _paper(r: np.ndarray, z: np.ndarray, bands: np.ndarray, rtol: float) -> tupl
     rhs = r.T @ z
     x = np.zeros(r.shape[1])
     done = np.zeros(r.shape[1], dtype=bool)
-    rank, cond = 0, 1.0
     for l in np.unique(bands):
         idx = np.flatnonzero(bands == l)
         g = gram[np.ix_(idx, idx)]
@@ -175,10 +193,38 @@ def _paper(r: np.ndarray, z: np.ndarray, bands: np.ndarray, rtol: float) -> tupl
         # invertible and a finite one when a band is singular (no NaN/inf).
         x[idx] = np.linalg.lstsq(g, b, rcond=None)[0]
         done[idx] = True
-        s = np.linalg.svd(g, compute_uv=False)
-        rank += numerical_rank(s, rtol * rtol)
-        cond = max(cond, s[0] / s[-1] if s[-1] > 0 else np.inf)
+    # Rank and condition of the normal equations the sweep works from (equilibrated A^T A = Rs^T Rs).
+    s = np.linalg.svd(_equilibrate(r)[0], compute_uv=False) ** 2
+    rank = numerical_rank(s, rtol * rtol)
+    cond = s[0] / s[-1] if rank == len(s) else np.inf
     return x, rank, float(cond)
+
+
+PROBE_DAMPING = 1e-5
+"""Damping of :func:`probe_solution`, relative to the largest possible singular value of the
+column-equilibrated system (``sqrt(n)``)."""
+
+
+def probe_solution(qr: StreamedQR) -> np.ndarray:
+    """A cheap, slightly damped least-squares solution (n, C) for monitoring a stream (not a final answer).
+
+    Solves ``(Rs^T Rs + mu^2 I) y = Rs^T z``, ``x = y / d`` (``Rs = R / d`` column-equilibrated,
+    ``mu = PROBE_DAMPING * sqrt(n)``) by one batched dense solve of the normal equations:
+    O(n^3) per channel with a small constant, several times cheaper than the SVD the
+    final solvers use.  The damping keeps the normal-equation matrix's
+    condition number below ``1 / PROBE_DAMPING^2`` = 1e10, so rank-deficient systems give a
+    finite answer whose fitted values (and predictions in the span of the data) converge with
+    the exact ones; the stopping rule of :func:`fit.fitter.fit_brdf` compares such predictions.
+    """
+    r, z = qr.r, qr.z  # (C, n, n), (C, n)
+    d = np.linalg.norm(r, axis=1)  # (C, n) column norms
+    d = np.where(d > 0, d, 1.0)
+    rs = r / d[:, None, :]
+    gram = np.matmul(np.swapaxes(rs, 1, 2), rs)
+    gram[:, np.arange(qr.n), np.arange(qr.n)] += (PROBE_DAMPING**2) * qr.n
+    rhs = np.matmul(np.swapaxes(rs, 1, 2), z[:, :, None])
+    y = np.linalg.solve(gram, rhs)[:, :, 0]
+    return (y / d).T
 
 
 def solve(
@@ -188,6 +234,7 @@ def solve(
     bands: np.ndarray | None = None,
     x0: np.ndarray | None = None,
     rtol: float = RANK_RTOL,
+    lam_min: float = LAM_GRID_MIN,
 ) -> Solution:
     """Solve every channel of a streamed system.
 
@@ -202,6 +249,9 @@ def solve(
         Prior; the solvers solve for ``x - x0``.
     rtol : float
         Relative singular-value threshold of the numerical rank.
+    lam_min : float
+        ``tikhonov`` only: smallest lambda (relative to the largest singular value of the
+        column-equilibrated system) GCV may choose.
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
@@ -220,7 +270,7 @@ def solve(
         if solver == "joint":
             dx, rank[c], cond[c] = _joint(r, zc, rtol)
         elif solver == "tikhonov":
-            dx, rank[c], cond[c], lam[c] = _tikhonov(r, zc, outside, qr.rows, rtol)
+            dx, rank[c], cond[c], lam[c] = _tikhonov(r, zc, outside, qr.rows, rtol, lam_min)
         else:
             dx, rank[c], cond[c] = _paper(r, zc, np.asarray(bands), rtol)
         x[:, c] = prior + dx

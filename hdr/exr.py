@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_exr", "read_exr", "read_image", "ATTRIBUTE_PREFIX"]
+__all__ = ["write_exr", "read_exr", "read_image", "read_oiio", "ATTRIBUTE_PREFIX"]
 
 ATTRIBUTE_PREFIX = "brdfrig:"
 _RGB = ("R", "G", "B")
@@ -222,8 +222,27 @@ def read_image(path: str | os.PathLike, *, allow_nonfinite: bool = False) -> np.
         raise FileNotFoundError(f"{path}: no such image file")
     if path.suffix.lower() == ".exr":
         return read_exr(path, allow_nonfinite=allow_nonfinite)[0]
+    pixels, _ = read_oiio(path)
+    image = pixels[:, :, :3] if pixels.shape[2] >= 3 else pixels[:, :, :1]
+    if not allow_nonfinite:
+        _check_finite(image, path, "the image")
+    return np.ascontiguousarray(image)
+
+
+def read_oiio(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
+    """Read every channel of an image file through OpenImageIO, as stored (integers scaled to [0, 1]).
+
+    Returns
+    -------
+    pixels : (H, W, C) float32
+    is_float : bool
+        Whether the file stores floating-point values (else integers, scaled by their range).
+    """
     import OpenImageIO as oiio
 
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such image file")
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ValueError(f"{path}: not a readable image: {oiio.geterror()}")
@@ -231,12 +250,9 @@ def read_image(path: str | os.PathLike, *, allow_nonfinite: bool = False) -> np.
         spec = inp.spec()
         pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
         error = inp.geterror() if inp.has_error else ""
+        is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
     finally:
         inp.close()
     if pixels is None or error:
         raise ValueError(f"{path}: truncated or corrupt image: {error or 'no pixels read'}")
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    image = pixels[:, :, :3] if spec.nchannels >= 3 else pixels[:, :, :1]
-    if not allow_nonfinite:
-        _check_finite(image, path, "the image")
-    return np.ascontiguousarray(image)
+    return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), is_float

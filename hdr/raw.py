@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hdr.exr import read_oiio
+
 __all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw"]
 
 #: File suffixes decoded by LibRaw (others go through OpenImageIO).
@@ -119,24 +121,8 @@ def read_frame(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
     path = Path(path)
     if is_raw(path):
         return decode_raw(path), True
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such image file")
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"{path}: not a readable image: {oiio.geterror()}")
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        error = inp.geterror() if inp.has_error else ""
-        is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
-    finally:
-        inp.close()
-    if pixels is None or error:
-        raise ValueError(f"{path}: truncated or corrupt image: {error or 'no pixels read'}")
-    pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
-    if spec.nchannels >= 3:
+    pixels, is_float = read_oiio(path)
+    if pixels.shape[2] >= 3:
         image = pixels[:, :, :3]
     else:
         image = np.repeat(pixels[:, :, :1], 3, axis=2)

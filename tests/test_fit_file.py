@@ -71,6 +71,35 @@ def test_other_version_and_corrupt_files_are_clear_errors(tmp_path):
 
 
 def test_failed_write_leaves_nothing(tmp_path):
-    with pytest.raises(TypeError):
-        save_brdf(tmp_path / "x.json", _random_model("lobe"), {"bad": object()})
-    assert list(tmp_path.iterdir()) == []
+    # Arbitrary report objects are written as their text (fit.brdffile.jsonable); force the failure
+    # at the final rename instead: the target is a directory.
+    (tmp_path / "x.json").mkdir()
+    with pytest.raises(OSError):
+        save_brdf(tmp_path / "x.json", _random_model("lobe"), {"path": tmp_path})
+    assert [p.name for p in tmp_path.iterdir()] == ["x.json"]
+    assert list((tmp_path / "x.json").iterdir()) == []
+
+
+def test_registry_reads_analytic_models_without_a_prior_import():
+    # A fresh interpreter that imports only fit.brdf: the registry must import fit.analytic itself.
+    import subprocess
+    import sys
+
+    from fit.analytic import GGX, BlinnPhong, Lambertian
+
+    cases = [Lambertian([0.5, 0.4, 0.3]), BlinnPhong(diffuse=[0.3] * 3, specular=[0.2] * 3, exponent=[20.0] * 3),
+             GGX(alpha=0.3, f0=[0.04] * 3, diffuse=[0.5, 0.4, 0.3])]
+    script = (
+        "import json, sys, numpy as np\n"
+        "from fit.brdf import brdf_from_dict\n"
+        "out = []\n"
+        "for d in json.loads(sys.stdin.read()):\n"
+        "    b = brdf_from_dict(d)\n"
+        "    out.append([b.model, np.asarray(b.evaluate(0.4, 0.7, 2.0)).tolist()])\n"
+        "print(json.dumps(out))\n"
+    )
+    run = subprocess.run([sys.executable, "-c", script], input=json.dumps([c.to_dict() for c in cases]),
+                         capture_output=True, text=True, check=True)
+    for brdf, (model, value) in zip(cases, json.loads(run.stdout)):
+        assert model == brdf.model
+        np.testing.assert_allclose(value, brdf.evaluate(0.4, 0.7, 2.0), rtol=1e-12)

@@ -1,6 +1,6 @@
 """Crash safety: SIGKILL a real session process at 20 random points; each resume completes and matches.
 
-Each trial forks a child process that runs a tiny simulated session (GRBL
+Each trial starts a child process (from a clean forkserver) that runs a tiny simulated session (GRBL
 simulator on a pty, simulated camera), kills it with SIGKILL after a random
 number of journal records plus a random delay (so kills land inside file
 writes, manifest rewrites and table moves too), then resumes it in another
@@ -61,7 +61,7 @@ TRIALS = 20
 
 
 def _child(plan: str, out: str, resume: bool) -> None:
-    """Body of a session process (forked): run or resume, quietly; exit status 0 on completion."""
+    """Body of a session process: run or resume, quietly; exit status 0 on completion."""
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, 1)
     os.dup2(devnull, 2)
@@ -78,20 +78,16 @@ def _child(plan: str, out: str, resume: bool) -> None:
         os._exit(code)
 
 
-def _preload() -> None:
-    """Import what a session process needs once, before forking (imports start no threads; numba kernels
-    are not run here, so the children's OpenMP runtime starts fresh after the fork)."""
-    import capture.pipeline  # noqa: F401
-    import capture.session  # noqa: F401
-    import hdr.dng  # noqa: F401
-    import hdr.raw  # noqa: F401
-    import rig.grbl_sim  # noqa: F401
-    import rig.sim_camera  # noqa: F401
-    import rig.turntable  # noqa: F401
+# Session processes come from a forkserver started clean, not forked from pytest: numba's OpenMP layer
+# raises SIGTERM in a child forked from a process that already ran a parallel kernel (earlier tests do).
+_CHILD_MODULES = ["capture.pipeline", "capture.session", "hdr.dng", "hdr.raw", "rig.grbl_sim",
+                  "rig.sim_camera", "rig.turntable"]
+_CTX = multiprocessing.get_context("forkserver")
+_CTX.set_forkserver_preload(_CHILD_MODULES)
 
 
 def _start(plan: Path, out: Path, resume: bool):
-    p = multiprocessing.get_context("fork").Process(target=_child, args=(str(plan), str(out), resume))
+    p = _CTX.Process(target=_child, args=(str(plan), str(out), resume))
     p.start()
     return p
 
@@ -114,11 +110,10 @@ def _fit(out: Path) -> dict:
     return {s.name: s.brdf.to_dict() for s in result.samples}
 
 
-@pytest.mark.skipif(sys.platform != "linux", reason="needs fork and ptys")
+@pytest.mark.skipif(sys.platform != "linux", reason="needs a forkserver and ptys")
 def test_sigkill_at_random_points_then_resume(tmp_path):
     plan = tmp_path / "tiny.toml"
     plan.write_text(PLAN)
-    _preload()
     ref = tmp_path / "ref"
     p = _start(plan, ref, resume=False)
     p.join(120)
@@ -139,7 +134,10 @@ def test_sigkill_at_random_points_then_resume(tmp_path):
         while _journal_records(out) < target and p.is_alive() and time.monotonic() < deadline:
             time.sleep(0.002)
         time.sleep(delay)
-        os.kill(p.pid, signal.SIGKILL)
+        try:
+            os.kill(p.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass  # it already finished (a forkserver child is reaped by the server, not by us)
         p.join(10)
         if not (out / "session.json").exists():
             landed["before the session existed"] += 1

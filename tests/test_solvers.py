@@ -132,3 +132,21 @@ def test_all_zero_system_gives_finite_zero(solver):
 def test_unknown_solver_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown solver"):
         solve(StreamedQR(2, 1), "cholesky")
+
+
+def test_paper_reports_the_condition_of_the_normal_equations_it_solves():
+    # One unknown per band (the 'diffuse' layout): every per-band block is 1x1, so a per-block
+    # condition number would be 1.0 whatever the system; the reported one must be the
+    # column-equilibrated A^T A's (dense oracle), the square of joint's.
+    a, b, w, _ = _problem(n=5, c=1)
+    a[:, 4, :] = a[:, 3, :] + 1e-3 * a[:, 4, :]  # two nearly collinear columns
+    bands = np.arange(5)
+    sol = solve(_stream(a, b, w), "paper", bands=bands)
+    ad, _ = _dense(a, b, w, 0)
+    ad = ad / np.linalg.norm(ad, axis=0)
+    s = np.linalg.svd(ad.T @ ad, compute_uv=False)
+    assert sol.cond[0] > 1e3
+    assert sol.cond[0] == pytest.approx(s[0] / s[-1], rel=1e-6)
+    assert sol.rank[0] == 5
+    joint = solve(_stream(a, b, w), "joint")
+    assert sol.cond[0] == pytest.approx(joint.cond[0] ** 2, rel=1e-6)
