@@ -174,10 +174,13 @@ def _fit(scenes: list[Scene], model: str, solver: str, lmax: int):
     return fit_brdf(scenes, model=model, lmax=lmax, pmax=lmax, solver=solver, progress=False)
 
 
-def _timed(scenes: list[Scene], model: str, solver: str, lmax: int, runs: int):
-    """(median seconds, last FitResult) over up to ``runs`` fits; stops repeating after :data:`TIME_BUDGET_S`."""
+def _timed(scenes: list[Scene], model: str, solver: str, lmax: int, runs: int, budget_s: float = TIME_BUDGET_S):
+    """(median seconds, last FitResult) over up to ``runs`` fits; stops repeating after ``budget_s`` seconds.
+
+    Only :func:`fit.fitter.fit_brdf` is timed (scenes are built beforehand): the work a user's fit does.
+    """
     times, result = [], None
-    while len(times) < runs and sum(times) < TIME_BUDGET_S:
+    while len(times) < runs and sum(times) < budget_s:
         t0 = time.perf_counter()
         result = _fit(scenes, model, solver, lmax)
         times.append(time.perf_counter() - t0)
@@ -236,7 +239,8 @@ def run_benchmark(
         big = [_resample(img, normals, config.sphere_size, big_normals) for img in images]
         for count in sorted({1, max_scenes}):
             scenes = [Scene(envs[k], big_normals, big[k], big_weights) for k in range(count)]
-            headline[count] = _timed(scenes, "full", "joint", config.headline_lmax, config.runs)[0]
+            # Every run counts here (no time budget): the headline is a median, not one possibly cold run.
+            headline[count] = _timed(scenes, "full", "joint", config.headline_lmax, config.runs, budget_s=math.inf)[0]
     return BenchResult(rows, headline, config.headline_size, config.headline_lmax, lighting)
 
 
