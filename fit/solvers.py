@@ -34,11 +34,14 @@ condition number are returned with every solution.
 
 from __future__ import annotations
 
+import functools
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import math
-
 import numpy as np
+import scipy.linalg
 
 __all__ = ["RANK_RTOL", "LAM_GRID_MIN", "PROBE_DAMPING", "probe_solution", "SOLVERS", "StreamedQR", "Solution", "solve", "numerical_rank"]
 
@@ -54,6 +57,12 @@ def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:
     if s.size == 0 or not np.isfinite(s[0]) or s[0] <= 0:
         return 0
     return int(np.count_nonzero(s > rtol * s[0]))
+
+
+@functools.cache
+def _channel_pool() -> ThreadPoolExecutor:
+    """Worker threads for per-channel QR updates (one per core, at most 4)."""
+    return ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)), thread_name_prefix="brdfrig-qr")
 
 
 class StreamedQR:
@@ -74,17 +83,30 @@ class StreamedQR:
         self.rows = 0
 
     def add(self, design: np.ndarray, radiance: np.ndarray, weights: np.ndarray) -> None:
-        """Fold a block in: design (nb, n, C), radiance (nb, C), weights (nb,) >= 0."""
+        """Fold a block in: design (nb, n, C), radiance (nb, C), weights (nb,) >= 0.
+
+        The channels are independent systems: each is updated on its own thread
+        (scipy's LAPACK wrapper releases the GIL; numpy's 2-D ``qr`` measured no
+        overlap), ~1.8x on two cores, where a second BLAS thread inside one
+        ``geqrf`` made it slower.
+        """
         nb = design.shape[0]
         if nb == 0:
             return
         sw = np.sqrt(np.asarray(weights, dtype=np.float64))
         k = self.n + 1
-        stacked = np.empty((self.channels, k + nb, k))  # [R; sqrt(w) [A | b]], written in place (one pass)
-        stacked[:, :k, :] = self._r
-        np.multiply(np.moveaxis(design, 2, 0), sw[None, :, None], out=stacked[:, k:, : self.n])
-        np.multiply(np.asarray(radiance).T, sw[None, :], out=stacked[:, k:, self.n])
-        self._r = np.linalg.qr(stacked, mode="r")[:, :k, :]
+
+        def update(c: int) -> np.ndarray:
+            stacked = np.empty((k + nb, k))  # [R; sqrt(w) [A | b]], written in place (one pass)
+            stacked[:k] = self._r[c]
+            np.multiply(design[:, :, c], sw[:, None], out=stacked[k:, : self.n])
+            np.multiply(radiance[:, c], sw, out=stacked[k:, self.n])
+            return scipy.linalg.qr(stacked, mode="r", overwrite_a=True, check_finite=False)[0][:k]
+
+        if self.channels == 1:
+            self._r = update(0)[None]
+        else:
+            self._r = np.stack(list(_channel_pool().map(update, range(self.channels))))
         self.rows += int(np.count_nonzero(sw))
 
     @property
