@@ -127,11 +127,10 @@ def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Pa
         return
     try:
         if s.backend == "sim":
-            from rig.sim_bench import SimBench
+            from capture.session import make_sim_bench
             from rig.sim_camera import SimulatedCamera
 
-            camera = SimulatedCamera(SimBench(**{k: v for k, v in sim_opts.items() if k != "table_start_deg"},
-                                              carries=carries), sim)
+            camera = SimulatedCamera(make_sim_bench(sim_opts, carries, "the rig check's simulated bench"), sim)
         elif s.backend == "gphoto2":
             from rig.gphoto import GphotoCamera
 

@@ -82,19 +82,24 @@ _SIM_TABLE_KEYS = ("table_start_deg",)
 
 
 def sim_bench(config: SessionConfig):
-    """The ``rig.sim_bench.SimBench`` described by ``[rig.sim]`` (unknown keys named in the error)."""
+    """The ``rig.sim_bench.SimBench`` described by ``[rig.sim]`` of a session config."""
+    return make_sim_bench(config.rig.sim, config.rig.carries, config.source)
+
+
+def make_sim_bench(options: dict, carries: str, source: str):
+    """A ``rig.sim_bench.SimBench`` from ``[rig.sim]``-style options (unknown keys named, with ``source``)."""
     import inspect
 
     from rig.sim_bench import SimBench
 
-    opts = {k: v for k, v in config.rig.sim.items() if k not in _SIM_TABLE_KEYS}
+    opts = {k: v for k, v in options.items() if k not in _SIM_TABLE_KEYS}
     allowed = [p for p in inspect.signature(SimBench).parameters if p != "carries"]
     for key in opts:
         if key not in allowed:
             hint = difflib.get_close_matches(key, allowed, n=1)
-            raise ConfigError(f"unknown key {key!r} in [rig.sim] of {config.source}"
+            raise ConfigError(f"unknown key {key!r} in [rig.sim] of {source}"
                               + (f"; did you mean {hint[0]!r}?" if hint else f"; allowed keys: {', '.join(allowed)}"))
-    return SimBench(carries=config.rig.carries, **opts)
+    return SimBench(carries=carries, **opts)
 
 
 def _sim_table_options(config: SessionConfig) -> dict:
