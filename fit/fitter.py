@@ -23,6 +23,11 @@ Pipeline (``../shared/docs/MATH.md``):
    compared with the previous one; the stream stops when that relative
    change stays below ``tol`` (default :data:`STOP_TOL`) for two consecutive blocks.
    The resulting QR factor is shared by every solver and prior on the same model.
+   A model the lighting analysis finds rank-deficient (``full`` from few scenes) is streamed in a
+   basis of its design's row space found on the first block (QR of r < n columns, e.g. 146 of 285
+   for one scene at l = p = 8), with every later block checked to lie in it (else the stream
+   restarts unreduced); the factor is lifted back to the n unknowns, so the stopping rule, every
+   solver and the reported rank and condition number see the same system (report: ``reduced_stream``).
 5. Held-out check: a random :data:`HELDOUT_FRACTION` of the pixels (at most
    :data:`HELDOUT_MAX` of them) never enter a fit; each candidate's weighted
    relative RMS error on them is reported.  ``auto`` keeps only candidates the
@@ -46,7 +51,7 @@ from fit.identifiability import THETA_MAX_DEG, analyse_lighting
 from fit.models import make_linear_brdf, plausibility, project_to_full
 from fit.scene import Scene
 from fit.shproject import project_environment
-from fit.solvers import SOLVERS, StreamedQR, probe_solution, solve
+from fit.solvers import SOLVERS, StreamedQR, numerical_rank, probe_solution, solve
 from fit.system import ModelSpec, design_block
 
 __all__ = ["FitResult", "fit_brdf", "MODELS", "RICHNESS", "DEFAULT_MAX_THETA_DEG", "STOP_TOL"]
@@ -161,9 +166,28 @@ def _rel_error(pred: np.ndarray, target: np.ndarray, weights: np.ndarray) -> flo
     return math.sqrt(num / den)
 
 
+REDUCE_RTOL = 1e-13
+"""Singular values of the first block's column-equilibrated factor above this fraction of the largest span
+the basis a rank-deficient model is streamed in.  One scene, ``full`` at l = p = 8 (285 unknowns): 146 of
+them are above 1e-11, the rest below 2e-15 (rounding), in every block; the solvers' own threshold
+(:data:`fit.solvers.RANK_RTOL` = 1e-9) and Tikhonov damping act far above it."""
+REDUCE_MAX_FRACTION = 0.75
+"""Reduce only when that rank is at most this fraction of the unknowns (QR cost ~ rows x columns^2:
+above it the extra products of the reduction eat the saving)."""
+REDUCE_OUTSIDE_RTOL = 1e-11
+"""A later block whose (sketched, column-equilibrated) rows have more than this relative norm outside the
+basis adds rank: the stream starts again unreduced."""
+_SKETCH_ROWS = 8
+_CHECK_ROWS = 512
+
+
 @dataclass
 class _Stream:
-    """A model's streamed system: QR factor, held-out design, and how much of the pixel stream it took."""
+    """A model's streamed system: QR factor, held-out design, and how much of the pixel stream it took.
+
+    ``reduced_columns``: None, or the number of columns r < n of the basis the design was streamed in
+    (the factor ``qr`` is then :meth:`fit.solvers.StreamedQR.lifted` back to the n unknowns).
+    """
 
     spec: ModelSpec
     qr: StreamedQR
@@ -171,22 +195,96 @@ class _Stream:
     consumed: int
     converged: bool
     seconds: float
+    reduced_columns: int | None = None
 
 
-def _stream(spec, coeffs, pool, train, held, tol, progress, label) -> _Stream:
-    """Fold random pixel blocks into the QR factor until the stopping rule holds (module docstring, step 4)."""
+@dataclass
+class _Basis:
+    """Per channel c: ``w[c]`` (n, r) spans the rows of the design, ``null[c]`` (n, n - r) the rest, and
+    ``back[c]`` (r, n) maps coordinates back (``A = (A w[c]) back[c]`` for rows in the span)."""
+
+    w: np.ndarray  # (C, n, r)
+    null: list[np.ndarray]
+    back: np.ndarray  # (C, r, n)
+
+
+def _reduced_basis(qr: StreamedQR) -> _Basis | None:
+    """Bases of the row space of the accumulated factor, or None when it is (nearly) of full rank.
+
+    From the SVD of the column-equilibrated ``R = Rs diag(d)``, ``Rs = U S V^T`` with r singular values
+    above :data:`REDUCE_RTOL`: ``w = diag(1/d) V[:, :r]``, ``null = diag(1/d) V[:, r:]``,
+    ``back = V[:, :r]^T diag(d)``.  None unless every channel has the same r <= :data:`REDUCE_MAX_FRACTION` n.
+    """
+    w, null, back, ranks = [], [], [], set()
+    for c in range(qr.channels):
+        r = qr.r[c]
+        d = np.linalg.norm(r, axis=0)
+        d = np.where(d > 0, d, 1.0)
+        _, s, vt = np.linalg.svd(r / d)
+        k = numerical_rank(s, REDUCE_RTOL)
+        ranks.add(k)
+        w.append(vt[:k].T / d[:, None])
+        null.append(vt[k:].T / d[:, None])
+        back.append(vt[:k] * d[None, :])
+    k = ranks.pop() if len(ranks) == 1 else 0
+    if k == 0 or k > REDUCE_MAX_FRACTION * qr.n:
+        return None
+    return _Basis(np.stack(w), null, np.stack(back))
+
+
+def _outside(design: np.ndarray, sw: np.ndarray, basis: _Basis, rng: np.random.Generator) -> float:
+    """Largest relative norm, over channels, of a Gaussian sketch of weighted rows outside the basis.
+
+    ``design @ null[c]`` are the coordinates of the column-equilibrated rows outside the row space.  The
+    sketch combines :data:`_CHECK_ROWS` random rows of the block (pixels are in random order, so a
+    pixel population that adds rank shows up in the first blocks' samples with probability ~1).
+    """
+    nb, _, channels = design.shape
+    rows = np.sort(rng.choice(nb, min(nb, _CHECK_ROWS), replace=False))
+    sub = design[rows]  # a C-ordered copy (the block itself is not, and copying it all cost more than the saving)
+    sketch = (rng.standard_normal((_SKETCH_ROWS, len(rows))) * sw[rows]) @ sub.reshape(len(rows), -1)
+    sketch = sketch.reshape(_SKETCH_ROWS, *design.shape[1:])
+    worst = 0.0
+    for c in range(channels):
+        s = sketch[:, :, c]  # (k, n)
+        inside, out = np.linalg.norm(s @ basis.w[c]), np.linalg.norm(s @ basis.null[c])
+        worst = max(worst, out / max(math.hypot(inside, out), 1e-300))
+    return worst
+
+
+def _stream(spec, coeffs, pool, train, held, tol, progress, label, reduce=False) -> _Stream:
+    """Fold random pixel blocks into the QR factor until the stopping rule holds (module docstring, step 4).
+
+    ``reduce``: when the first block shows the design rank-deficient (:func:`_reduced_basis`), the rest
+    is folded in the reduced basis (QR of r instead of n columns) and the factor lifted back for the
+    stopping rule and the solvers (same system up to rounding); if a later block adds rank, the stream
+    starts again unreduced.
+    """
     t0 = time.perf_counter()
     a_h = _design(spec, coeffs, pool, held)
     qr = StreamedQR(spec.n_unknowns, pool.radiance.shape[1])
+    basis, rng = None, np.random.default_rng(0)
     prev, stable, converged, consumed = None, 0, False, 0
     blocks = range(0, len(train), BLOCK_ROWS)
     for start in tqdm(blocks, desc=f"fit {label}", unit="block", disable=not progress, leave=False):
         idx = np.sort(train[start : start + BLOCK_ROWS])  # row order is irrelevant to QR; sorted = one slice per scene
-        qr.add(_design(spec, coeffs, pool, idx), pool.radiance[idx], pool.weights[idx])
+        design, w = _design(spec, coeffs, pool, idx), pool.weights[idx]
+        if basis is None:
+            qr.add(design, pool.radiance[idx], w)
+        elif _outside(design, np.sqrt(w), basis, rng) > REDUCE_OUTSIDE_RTOL:
+            return _stream(spec, coeffs, pool, train, held, tol, progress, label, reduce=False)
+        else:
+            qr.add(design, pool.radiance[idx], w, basis.w)
         consumed = start + len(idx)
-        if qr.rows < 3 * spec.n_unknowns or len(held) == 0:
+        if reduce and start == 0 and qr.rows >= 3 * spec.n_unknowns:
+            basis = _reduced_basis(qr)
+            if basis is not None:
+                qr = StreamedQR(basis.back.shape[1], qr.channels)
+                qr.add(design, pool.radiance[idx], w, basis.w)
+        full = qr if basis is None else qr.lifted(basis.back)
+        if full.rows < 3 * spec.n_unknowns or len(held) == 0:
             continue
-        pred = np.einsum("inc,nc->ic", a_h, probe_solution(qr))
+        pred = np.einsum("inc,nc->ic", a_h, probe_solution(full))
         if prev is not None:
             change = np.linalg.norm(pred - prev) / max(np.linalg.norm(pred), 1e-300)
             stable = stable + 1 if change < tol else 0
@@ -194,7 +292,8 @@ def _stream(spec, coeffs, pool, train, held, tol, progress, label) -> _Stream:
                 converged = True
                 break
         prev = pred
-    return _Stream(spec, qr, a_h, consumed, converged, time.perf_counter() - t0)
+    full = qr if basis is None else qr.lifted(basis.back)
+    return _Stream(spec, full, a_h, consumed, converged, time.perf_counter() - t0, None if basis is None else qr.n)
 
 
 def _solve_stream(st: _Stream, pool, train, held, solver, x0, lam_min=None) -> tuple[np.ndarray, dict]:
@@ -217,6 +316,10 @@ def _solve_stream(st: _Stream, pool, train, held, solver, x0, lam_min=None) -> t
         "rank": sol.rank.tolist(),
         "condition_number": sol.cond.tolist(),
         "full_rank": bool(np.all(sol.rank == n)),
+        "reduced_stream": None if st.reduced_columns is None else (
+            f"rows streamed in a {st.reduced_columns}-column basis of the design's row space (found on the "
+            f"first block, rank at {REDUCE_RTOL:g}); rank and condition number are of the lifted {n}-unknown system"
+        ),
         "tikhonov_lambda_rel": None if sol.lam is None else sol.lam.tolist(),
         "tikhonov_lambda_min_rel": lam_min,
         "rows_used": st.qr.rows,
@@ -327,7 +430,11 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     def linear(kind, name, spec_lmax, x0_brdf=None, use_solver=solver):
         spec = ModelSpec(kind, spec_lmax, pmax, bands=tuple(b for b in bands if b <= spec_lmax))
         if spec not in streams:
-            streams[spec] = _stream(spec, coeffs, pool, train, held, tol, progress, name)
+            # Reduce the stream where the lighting analysis already found the design rank-deficient
+            # (the first block decides; the hint spares full-rank models its SVD).
+            entry = ident.models.get(kind, {}) if spec_lmax == lmax else {}
+            reduce = entry.get("rank", spec.n_unknowns) <= REDUCE_MAX_FRACTION * spec.n_unknowns
+            streams[spec] = _stream(spec, coeffs, pool, train, held, tol, progress, name, reduce=reduce)
         x0, lam_min = None, None
         if x0_brdf is not None:
             x0 = project_to_full(x0_brdf, spec)

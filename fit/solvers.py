@@ -82,8 +82,11 @@ class StreamedQR:
         self._r = np.zeros((channels, n + 1, n + 1))
         self.rows = 0
 
-    def add(self, design: np.ndarray, radiance: np.ndarray, weights: np.ndarray) -> None:
+    def add(self, design: np.ndarray, radiance: np.ndarray, weights: np.ndarray, basis: np.ndarray | None = None) -> None:
         """Fold a block in: design (nb, n, C), radiance (nb, C), weights (nb,) >= 0.
+
+        With ``basis`` (C, n', n) the design given is (nb, n', C) and channel c's rows
+        ``design[:, :, c] @ basis[c]`` are folded in (a reduced basis, computed on the channel's thread).
 
         The channels are independent systems: each is updated on its own thread
         (scipy's LAPACK wrapper releases the GIL; numpy's 2-D ``qr`` measured no
@@ -99,7 +102,8 @@ class StreamedQR:
         def update(c: int) -> np.ndarray:
             stacked = np.empty((k + nb, k))  # [R; sqrt(w) [A | b]], written in place (one pass)
             stacked[:k] = self._r[c]
-            np.multiply(design[:, :, c], sw[:, None], out=stacked[k:, : self.n])
+            rows = design[:, :, c] if basis is None else design[:, :, c] @ basis[c]
+            np.multiply(rows, sw[:, None], out=stacked[k:, : self.n])
             np.multiply(radiance[:, c], sw, out=stacked[k:, self.n])
             return scipy.linalg.qr(stacked, mode="r", overwrite_a=True, check_finite=False)[0][:k]
 
@@ -109,9 +113,27 @@ class StreamedQR:
             self._r = np.stack(list(_channel_pool().map(update, range(self.channels))))
         self.rows += int(np.count_nonzero(sw))
 
+    def lifted(self, back: np.ndarray) -> StreamedQR:
+        """The system of ``A`` (n columns) from this factor of a reduced design ``A W`` (r columns).
+
+        Exact when ``A = (A W) back``, i.e. the rows of ``A`` lie in the span ``back`` (C, r, n) maps
+        ``W``'s coordinates onto (:func:`fit.fitter.fit_brdf` streams rank-deficient models so): the
+        returned factor ``R back`` (rows r.. zero) has the same ``R^T R = A^T A``, ``R^T z = A^T b``
+        and residual outside the column space, which is all the solvers use.
+        """
+        channels, k, n = back.shape
+        if channels != self.channels or k != self.n:
+            raise ValueError(f"back has shape {back.shape}, expected ({self.channels}, {self.n}, n)")
+        out = StreamedQR(n, channels)
+        out._r[:, :k, :n] = np.matmul(self.r, back)
+        out._r[:, :k, n] = self.z
+        out._r[:, n, n] = self._r[:, k, k]
+        out.rows = self.rows
+        return out
+
     @property
     def r(self) -> np.ndarray:
-        """(C, n, n) upper-triangular factor of ``sqrt(w) A``."""
+        """(C, n, n) factor ``R`` of ``sqrt(w) A`` (``R^T R = A^T A``; upper triangular unless :meth:`lifted`)."""
         return self._r[:, : self.n, : self.n]
 
     @property

@@ -213,3 +213,32 @@ def test_bad_input_is_a_clear_error(probes):
         fit_brdf(make_scenes(Lambertian(ALBEDO), [fit_env], normals, weights), lmax=40, progress=False)
     with pytest.raises(ValueError, match="unknown model"):
         fit_brdf(make_scenes(Lambertian(ALBEDO), [fit_env], normals, weights), model="phong", progress=False)
+
+
+def test_one_scene_full_fit_streams_reduced_with_the_same_prediction(probes, monkeypatch):
+    """One scene leaves ``full`` rank-deficient: the stream is folded in a basis of the design's row
+    space (fewer QR columns); fitted radiance, rank and unknowns match the unreduced stream."""
+    import fit.fitter
+
+    fit_env, _ = probes
+    normals, weights = sphere(96)
+    scenes = make_scenes(GGX(**GGX_MATERIAL), [fit_env], normals, weights)
+    reduced = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
+    monkeypatch.setattr(fit.fitter, "REDUCE_MAX_FRACTION", -1.0)  # never reduce
+    plain = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
+    red, ref = reduced.report["candidates"]["full"], plain.report["candidates"]["full"]
+    print(f"reduced stream: {red['reduced_stream']}; rank {red['rank']} of {red['unknowns']}")
+    assert red["reduced_stream"] is not None and ref["reduced_stream"] is None
+    assert red["rank"] == ref["rank"] and red["rows_used"] == ref["rows_used"] > 2048  # several blocks checked
+    pred, oracle = reduced.brdf.predict(fit_env, normals), plain.brdf.predict(fit_env, normals)
+    rel = np.linalg.norm(pred - oracle) / np.linalg.norm(oracle)
+    print(f"  relative difference of the predicted radiance: {rel:.2e}")
+    assert rel <= 1e-6
+    # and the same (minimum-norm) unknowns
+    np.testing.assert_allclose(reduced.brdf.x, plain.brdf.x, rtol=0, atol=1e-6 * np.abs(plain.brdf.x).max())
+    # a later block outside the basis makes the stream start again unreduced
+    monkeypatch.setattr(fit.fitter, "REDUCE_MAX_FRACTION", 0.75)
+    monkeypatch.setattr(fit.fitter, "REDUCE_OUTSIDE_RTOL", -1.0)
+    fallback = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
+    assert fallback.report["candidates"]["full"]["reduced_stream"] is None
+    np.testing.assert_allclose(fallback.brdf.x, plain.brdf.x, rtol=1e-12, atol=0)

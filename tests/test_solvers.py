@@ -150,3 +150,35 @@ def test_paper_reports_the_condition_of_the_normal_equations_it_solves():
     assert sol.rank[0] == 5
     joint = solve(_stream(a, b, w), "joint")
     assert sol.cond[0] == pytest.approx(joint.cond[0] ** 2, rel=1e-6)
+
+
+def test_reduced_basis_stream_lifted_back_solves_like_the_full_stream():
+    """Rows in an r-dimensional subspace folded as ``A W`` and lifted back by ``back`` (``A = A W back``)
+    give the dense minimum-norm / Tikhonov / paper answers of the n-column system."""
+    rng = np.random.default_rng(3)
+    m, n, r, c = 400, 10, 4, 2
+    basis_rows = rng.normal(size=(c, r, n)) * np.logspace(0, 2, n)  # rows of A lie in span(basis_rows[c]^T)
+    a = np.einsum("mrc,crn->mnc", rng.normal(size=(m, r, c)), basis_rows)
+    b = rng.normal(size=(m, c))
+    w = rng.uniform(0.2, 1.0, size=m)
+    back = basis_rows  # (C, r, n)
+    wmat = np.stack([np.linalg.pinv(back[k]) for k in range(c)])  # (C, n, r): back[k] @ wmat[k] = I_r
+    full = _stream(a, b, w)
+    red = StreamedQR(r, c)
+    for start in range(0, m, 128):
+        red.add(a[start : start + 128], b[start : start + 128], w[start : start + 128], basis=wmat)
+    lifted = red.lifted(back)
+    for solver in ("joint", "tikhonov", "paper"):
+        ref = solve(full, solver, bands=np.arange(n) // 4)
+        got = solve(lifted, solver, bands=np.arange(n) // 4)
+        assert got.rank.tolist() == ref.rank.tolist() == [r] * c
+        np.testing.assert_allclose(got.residual, ref.residual, rtol=1e-8)
+        for k in range(c):
+            fitted = a[:, :, k] @ got.x[:, k]
+            np.testing.assert_allclose(fitted, a[:, :, k] @ ref.x[:, k], rtol=0, atol=1e-8 * np.abs(fitted).max())
+    sw = np.sqrt(w)
+    for k in range(c):  # joint = dense minimum-norm least squares of the column-equilibrated system
+        ad, bd = a[:, :, k] * sw[:, None], b[:, k] * sw
+        d = np.linalg.norm(ad, axis=0)
+        y = np.linalg.lstsq(ad / d, bd, rcond=1e-9)[0]
+        np.testing.assert_allclose(solve(lifted, "joint").x[:, k], y / d, rtol=1e-7, atol=1e-9 * np.abs(y / d).max())
