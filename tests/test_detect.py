@@ -10,6 +10,18 @@ from hdr.detect import SphereNotFoundError, detect_sphere
 BACKGROUND = {"dark": 0.01, "bright": 5.0, "stand": 0.05, "highlight": 0.02}
 
 
+def antialiased(shade, h, w, circle, ss):
+    """Image of ``shade(x, y)`` at pixel centres; pixels within 1.5 px of the circle average ss x ss sub-samples."""
+    cx, cy, r = circle
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    img = shade(x, y)
+    edge = np.abs(np.hypot(x - cx, y - cy) - r) < 1.5
+    ey, ex = y[edge], x[edge]
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    img[edge] = np.mean([shade(ex + ox, ey + oy) for oy in off for ox in off], axis=0)
+    return img.astype(np.float32)
+
+
 def render(h, w, circle, case, ss=8):
     """A shaded sphere over a textured background; pixels crossed by the rim averaged over ss x ss sub-samples.
 
@@ -30,13 +42,7 @@ def render(h, w, circle, case, ss=8):
             bg = np.where((np.abs(px - cx) < 0.25 * r) & (py > cy), 0.6, bg)
         return np.where(inside, ball, bg)
 
-    y, x = np.mgrid[0:h, 0:w] + 0.5
-    img = shade(x, y)
-    edge = np.abs(np.hypot(x - cx, y - cy) - r) < 1.5
-    ey, ex = y[edge], x[edge]
-    off = (np.arange(ss) + 0.5) / ss - 0.5
-    img[edge] = np.mean([shade(ex + ox, ey + oy) for oy in off for ox in off], axis=0)
-    return img.astype(np.float32)
+    return antialiased(shade, h, w, circle, ss)
 
 
 @pytest.mark.parametrize("radius", [40, 100, 300, 1000])
@@ -104,13 +110,7 @@ def mirror_ball(h, w, circle, radiance, background=0.0, ss=8):
         out[inside] = radiance(d[inside])
         return out
 
-    y, x = np.mgrid[0:h, 0:w] + 0.5
-    img = shade(x, y)
-    edge = np.abs(np.hypot(x - cx, y - cy) - r) < 1.5
-    ey, ex = y[edge], x[edge]
-    off = (np.arange(ss) + 0.5) / ss - 0.5
-    img[edge] = np.mean([shade(ex + ox, ey + oy) for oy in off for ox in off], axis=0)
-    return img.astype(np.float32)
+    return antialiased(shade, h, w, circle, ss)
 
 
 def ball_circle(radius, margin, seed):
