@@ -140,6 +140,11 @@ def write_figure(path, scenes, shapes, pixels, brdf) -> None:
     save_png(fig, path)
 
 
+def _channels(values) -> str:
+    """Per-channel values as ``(a, b, c)`` with 3 significant digits."""
+    return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
+
+
 def run(args) -> int:
     from pathlib import Path
 
@@ -184,6 +189,11 @@ def run(args) -> int:
             + ("" if rank is None else f", rank {min(rank)}/{info['unknowns']}, cond {max(cond):.3g}")
             + ("" if info.get("determined") else "  [not determined]")
         )
+        if "fit_report" in info:  # microfacet: its parameters per channel
+            mf = info["fit_report"]
+            vals = " ".join(f"{k} {_channels(mf[k])}" for k in ("alpha", "f0", "f90", "diffuse_albedo", "diffuse_sigma"))
+            series = f"SH series bands {mf['series_bands']}" if mf["series_bands"] else "no SH series (check pixels: no gain)"
+            print(f"  {'':10s} {vals}; {series}")
     print(f"model: {rep['chosen_model']} ({rep['reason']})")
     for w in rep["warnings"]:
         print(f"warning: {w}", file=sys.stderr)

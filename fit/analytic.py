@@ -1,18 +1,28 @@
 """Analytic isotropic BRDFs: the materials of the ground truth, the simulator and the microfacet fit.
 
-Three families, each with one parameter value per colour channel (scalars
+Four families, each with one parameter value per colour channel (scalars
 broadcast to every channel):
 
 - :class:`Lambertian` ``rho = albedo / pi``;
+- :class:`OrenNayar` ``rho = albedo / pi (A + B max(0, cos(phi_i - phi_o)) sin(a) tan(b))``,
+  ``a = max(theta_i, theta_o)``, ``b = min(...)``, ``A = 1 - 0.5 s^2 / (s^2 + 0.33)``,
+  ``B = 0.45 s^2 / (s^2 + 0.09)`` for facet slope deviation ``s`` (radians): the
+  qualitative rough-diffuse model of Oren & Nayar (SIGGRAPH 1994, eq. 30), a
+  non-Lambertian diffuse base (brighter toward the light at grazing view;
+  ``s = 0`` is Lambertian).  In cosines the angular factor is
+  ``max(0, cos_io - cos_i cos_o) / max(cos_i, cos_o)``;
 - :class:`BlinnPhong` ``rho = diffuse/pi + specular * (e + 8) / (8 pi) * (n.h)^e``
   (the energy-normalised Blinn-Phong lobe, Akenine-Moller et al., *Real-Time
   Rendering*, 3rd ed., eq. 7.49);
-- :class:`GGX` ``rho = diffuse/pi + F(h.wi) D(n.h) G2(wi, wo) / (4 (n.wi)(n.wo))``
+- :class:`GGX` ``rho = diffuse base + F(h.wi) D(n.h) G2(wi, wo) / (4 (n.wi)(n.wo))``
   with the GGX / Trowbridge-Reitz distribution ``D`` (Walter et al. 2007,
   roughness ``alpha``), the height-correlated Smith shadowing-masking
   ``G2 = 1 / (1 + Lambda(wi) + Lambda(wo))`` (Heitz 2014, eq. 99) and Schlick's
   Fresnel ``F = f0 + (f90 - f0) (1 - h.wi)^5`` (``f90 = 1`` is the physical
   Schlick form; other values let the microfacet fit keep its amplitudes linear).
+
+Every family's diffuse base is Oren-Nayar with its own ``diffuse_sigma``
+(default 0: Lambertian).
 
 Conventions (``../shared/docs/MATH.md``): ``rho`` in 1/sr without the cosine
 factor, world-frame unit vectors, ``rho = 0`` when either direction is below
@@ -45,6 +55,8 @@ __all__ = [
     "NUM_PARAMS",
     "AnalyticBRDF",
     "Lambertian",
+    "OrenNayar",
+    "oren_nayar_ab",
     "BlinnPhong",
     "GGX",
     "ggx_ndf",
@@ -57,9 +69,10 @@ __all__ = [
 KIND_LAMBERTIAN = 0
 KIND_BLINN_PHONG = 1
 KIND_GGX = 2
-NUM_PARAMS = 4
-"""Length of one channel's parameter row: Lambertian (albedo, 0, 0, 0); Blinn-Phong
-(diffuse, specular, exponent, 0); GGX (diffuse, f0, f90, alpha)."""
+NUM_PARAMS = 5
+"""Length of one channel's parameter row: diffuse only (albedo, 0, 0, 0, sigma); Blinn-Phong
+(diffuse, specular, exponent, 0, sigma); GGX (diffuse, f0, f90, alpha, sigma), with ``sigma``
+the Oren-Nayar roughness of the diffuse base (0 = Lambertian)."""
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -99,6 +112,23 @@ def ggx_lobe(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> tuple[f
 
 
 @numba.njit(cache=True, fastmath=False)
+def oren_nayar_ab(sigma: float) -> tuple[float, float]:
+    """Oren-Nayar coefficients ``(A, B)`` for facet slope deviation ``sigma`` (radians)."""
+    s2 = sigma * sigma
+    return 1.0 - 0.5 * s2 / (s2 + 0.33), 0.45 * s2 / (s2 + 0.09)
+
+
+@numba.njit(cache=True, fastmath=False)
+def oren_nayar_factor(sigma: float, cos_i: float, cos_o: float, cos_io: float) -> float:
+    """Oren-Nayar factor ``A + B max(0, cos dphi) sin(a) tan(b)`` (1 for ``sigma = 0``); both cosines > 0."""
+    if sigma == 0.0:
+        return 1.0
+    a, b = oren_nayar_ab(sigma)
+    # cos(dphi) sin_i sin_o = cos_io - cos_i cos_o;  sin(a) tan(b) = sin_i sin_o / max(cos_i, cos_o).
+    return a + b * max(cos_io - cos_i * cos_o, 0.0) / max(cos_i, cos_o)
+
+
+@numba.njit(cache=True, fastmath=False)
 def rho_channel(kind: int, p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
     """BRDF value (1/sr) of one channel with parameter row ``p`` (see :data:`NUM_PARAMS`).
 
@@ -107,7 +137,7 @@ def rho_channel(kind: int, p: np.ndarray, cos_i: float, cos_o: float, cos_io: fl
     """
     if cos_i <= 0.0 or cos_o <= 0.0:
         return 0.0
-    diffuse = p[0] / math.pi
+    diffuse = p[0] / math.pi * oren_nayar_factor(p[4], cos_i, cos_o, cos_io)
     if kind == KIND_LAMBERTIAN:
         return diffuse
     if kind == KIND_BLINN_PHONG:
@@ -226,6 +256,34 @@ class Lambertian(AnalyticBRDF):
         return cls(albedo=d["albedo"])
 
 
+@register_model("oren_nayar")
+@dataclass(frozen=True, eq=False)
+class OrenNayar(AnalyticBRDF):
+    """Rough diffuse reflector (module docstring); ``albedo`` (C,) >= 0, ``sigma`` facet slope deviation in radians >= 0."""
+
+    albedo: np.ndarray
+    sigma: np.ndarray
+    model = "oren_nayar"
+    kind = KIND_LAMBERTIAN
+
+    def __post_init__(self) -> None:
+        values = _broadcast_channels(albedo=_per_channel("albedo", self.albedo, 0.0), sigma=_per_channel("sigma", self.sigma, 0.0))
+        for k, v in values.items():
+            object.__setattr__(self, k, v)
+
+    def kernel_params(self) -> np.ndarray:
+        p = np.zeros((self.albedo.size, NUM_PARAMS))
+        p[:, 0], p[:, 4] = self.albedo, self.sigma
+        return p
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "albedo": self.albedo.tolist(), "sigma": self.sigma.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "OrenNayar":
+        return cls(albedo=d["albedo"], sigma=d["sigma"])
+
+
 @register_model("blinn_phong")
 @dataclass(frozen=True, eq=False)
 class BlinnPhong(AnalyticBRDF):
@@ -252,7 +310,8 @@ class BlinnPhong(AnalyticBRDF):
             object.__setattr__(self, k, v)
 
     def kernel_params(self) -> np.ndarray:
-        return np.stack([self.diffuse, self.specular, self.exponent, np.zeros_like(self.diffuse)], axis=1)
+        zero = np.zeros_like(self.diffuse)
+        return np.stack([self.diffuse, self.specular, self.exponent, zero, zero], axis=1)
 
     def to_dict(self) -> dict:
         return {"model": self.model, "diffuse": self.diffuse.tolist(), "specular": self.specular.tolist(), "exponent": self.exponent.tolist()}
@@ -269,15 +328,17 @@ class GGX(AnalyticBRDF):
 
     Parameters (per channel, scalars broadcast): ``alpha`` GGX roughness in
     (0, inf) (``alpha = perceptual_roughness^2``), ``f0`` Fresnel reflectance
-    at normal incidence >= 0, ``diffuse`` Lambertian albedo >= 0, ``f90``
-    reflectance at grazing incidence (1 = Schlick).  The sum of the diffuse
-    albedo and the lobe's albedo can exceed 1: no energy coupling is imposed.
+    at normal incidence >= 0, ``diffuse`` albedo of the base >= 0, ``f90``
+    reflectance at grazing incidence (1 = Schlick), ``diffuse_sigma`` the
+    base's Oren-Nayar roughness in radians (0 = Lambertian).  The sum of the
+    diffuse albedo and the lobe's albedo can exceed 1: no energy coupling is imposed.
     """
 
     alpha: np.ndarray
     f0: np.ndarray
     diffuse: np.ndarray
     f90: np.ndarray = 1.0
+    diffuse_sigma: np.ndarray = 0.0
     model = "ggx"
     kind = KIND_GGX
 
@@ -287,12 +348,13 @@ class GGX(AnalyticBRDF):
             f0=_per_channel("f0", self.f0, 0.0),
             diffuse=_per_channel("diffuse", self.diffuse, 0.0),
             f90=_per_channel("f90", self.f90, 0.0),
+            diffuse_sigma=_per_channel("diffuse_sigma", self.diffuse_sigma, 0.0),
         )
         for k, v in values.items():
             object.__setattr__(self, k, v)
 
     def kernel_params(self) -> np.ndarray:
-        return np.stack([self.diffuse, self.f0, self.f90, self.alpha], axis=1)
+        return np.stack([self.diffuse, self.f0, self.f90, self.alpha, self.diffuse_sigma], axis=1)
 
     def to_dict(self) -> dict:
         return {
@@ -301,8 +363,9 @@ class GGX(AnalyticBRDF):
             "f0": self.f0.tolist(),
             "diffuse": self.diffuse.tolist(),
             "f90": self.f90.tolist(),
+            "diffuse_sigma": self.diffuse_sigma.tolist(),
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> "GGX":
-        return cls(alpha=d["alpha"], f0=d["f0"], diffuse=d["diffuse"], f90=d.get("f90", 1.0))
+        return cls(alpha=d["alpha"], f0=d["f0"], diffuse=d["diffuse"], f90=d.get("f90", 1.0), diffuse_sigma=d.get("diffuse_sigma", 0.0))

@@ -64,6 +64,7 @@ _PROVIDERS: dict[str, str] = {
     "full": "fit.models",
     "microfacet": "fit.microfacet",
     "lambertian": "fit.analytic",
+    "oren_nayar": "fit.analytic",
     "blinn_phong": "fit.analytic",
     "ggx": "fit.analytic",
 }

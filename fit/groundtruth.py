@@ -87,32 +87,29 @@ def render_kernel(
 def _ggx_basis_kernel(
     alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray
 ) -> np.ndarray:
-    """Quadrature of the three linear parts of :class:`fit.analytic.GGX` (see :func:`render_ggx_basis`)."""
+    """Quadrature of the two linear parts of the GGX lobe (see :func:`render_ggx_basis`)."""
     n_pix = normals.shape[0]
     n_env = dirs.shape[0]
     nc = weighted_radiance.shape[1]
-    out = np.zeros((n_pix, nc, 3))
+    out = np.zeros((n_pix, nc, 2))
     cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         cos_o = nx * view[0] + ny * view[1] + nz * view[2]
         if cos_o <= 0.0:
             continue
-        acc = np.zeros((nc, 3))
+        acc = np.zeros((nc, 2))
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
             lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io[j], alpha)
-            schlick = (1.0 - cos_d) ** 5
-            b0 = cos_i / np.pi
-            b2 = lobe * schlick * cos_i
-            b1 = lobe * cos_i - b2
+            b1 = lobe * (1.0 - cos_d) ** 5 * cos_i
+            b0 = lobe * cos_i - b1
             for c in range(nc):
                 lw = weighted_radiance[j, c]
                 acc[c, 0] += lw * b0
                 acc[c, 1] += lw * b1
-                acc[c, 2] += lw * b2
         out[i] = acc
     return out
 
@@ -129,19 +126,18 @@ def _kernel_inputs(normals, env: Environment, view) -> tuple[np.ndarray, np.ndar
 
 
 def render_ggx_basis(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Renders of the three parts of a GGX material that enter linearly, for one roughness ``alpha``.
+    """Renders of the two parts of a GGX lobe that enter linearly, for one roughness ``alpha``.
 
-    ``GGX(alpha, f0, diffuse, f90)`` renders to
-    ``diffuse * B[..., 0] + f0 * B[..., 1] + f90 * B[..., 2]``: basis 0 is a
-    Lambertian of unit albedo, 1 the lobe weighted by ``1 - (1 - h.wi)^5``,
-    2 the lobe weighted by ``(1 - h.wi)^5``.  One pass computes all three
-    (the microfacet fit's inner loop), sharing the lobe evaluation.
+    The lobe of ``GGX(alpha, f0, diffuse=0, f90)`` renders to
+    ``f0 * B[..., 0] + f90 * B[..., 1]``: basis 0 is the lobe weighted by
+    ``1 - (1 - h.wi)^5``, basis 1 the lobe weighted by ``(1 - h.wi)^5``.  One
+    pass computes both (the microfacet fit's inner loop), sharing the lobe evaluation.
 
     Parameters and conventions as :func:`render_groundtruth`.
 
     Returns
     -------
-    (N, C, 3) float64.
+    (N, C, 2) float64.
     """
     normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
     return _ggx_basis_kernel(float(alpha), normals, dirs, weighted, view)

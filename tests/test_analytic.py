@@ -9,7 +9,7 @@ import pytest
 from scipy import integrate
 from scipy.spatial.transform import Rotation
 
-from fit.analytic import GGX, BlinnPhong, Lambertian, ggx_ndf, smith_lambda
+from fit.analytic import GGX, BlinnPhong, Lambertian, OrenNayar, ggx_ndf, smith_lambda
 from fit.brdf import brdf_from_dict
 
 
@@ -97,7 +97,8 @@ def test_ggx_white_furnace(alpha, theta_o):
 def test_reciprocity_and_horizon():
     rng = np.random.default_rng(1)
     wi, wo, n = _unit(rng, 500), _unit(rng, 500), _unit(rng, 500)
-    models = [Lambertian([0.2, 0.6]), BlinnPhong([0.1, 0.3], 0.7, [20.0, 5.0]), GGX([0.2, 0.6], 0.04, [0.3, 0.1])]
+    models = [Lambertian([0.2, 0.6]), BlinnPhong([0.1, 0.3], 0.7, [20.0, 5.0]), GGX([0.2, 0.6], 0.04, [0.3, 0.1]),
+              OrenNayar([0.5, 0.3], [0.3, 1.0]), GGX(0.3, 0.04, 0.5, diffuse_sigma=[0.0, 0.5])]
     for m in models:
         a, b = m.rho(wi, wo, n), m.rho(wo, wi, n)
         assert a.shape == (500, 2)
@@ -120,8 +121,24 @@ def test_evaluate_matches_rho_and_isotropy():
     assert m.evaluate(np.zeros((4, 3)), 0.5, 0.0).shape == (4, 3, 2)
 
 
+def test_oren_nayar_matches_its_angular_form():
+    # Oren & Nayar 1994, eq. 30, written with the angles (alpha = max, beta = min of the polar angles);
+    # the kernel uses a cosine rewrite of it.
+    rng = np.random.default_rng(4)
+    ti, to, dp = rng.uniform(0, 1.5, 200), rng.uniform(0, 1.5, 200), rng.uniform(-math.pi, math.pi, 200)
+    albedo, sigma = 0.7, 0.4
+    a = 1 - 0.5 * sigma**2 / (sigma**2 + 0.33)
+    b = 0.45 * sigma**2 / (sigma**2 + 0.09)
+    expected = albedo / math.pi * (a + b * np.maximum(0, np.cos(dp)) * np.sin(np.maximum(ti, to)) * np.tan(np.minimum(ti, to)))
+    np.testing.assert_allclose(OrenNayar(albedo, sigma).evaluate(ti, to, dp)[:, 0], expected, rtol=1e-12)
+    np.testing.assert_array_equal(OrenNayar(albedo, 0.0).evaluate(ti, to, dp), Lambertian(albedo).evaluate(ti, to, dp))
+    # the GGX base is the same Oren-Nayar term
+    np.testing.assert_allclose(GGX(0.3, 0.0, albedo, f90=0.0, diffuse_sigma=sigma).evaluate(ti, to, dp)[:, 0], expected, rtol=1e-12)
+
+
 def test_dict_roundtrip_and_validation():
-    for m in [Lambertian(0.5), BlinnPhong([0.1, 0.2, 0.3], 0.5, 30), GGX(0.3, 0.04, [0.2, 0.4, 0.6], f90=0.8)]:
+    for m in [Lambertian(0.5), BlinnPhong([0.1, 0.2, 0.3], 0.5, 30), GGX(0.3, 0.04, [0.2, 0.4, 0.6], f90=0.8),
+              OrenNayar([0.5, 0.4], 0.3), GGX(0.3, 0.04, 0.5, diffuse_sigma=0.2)]:
         back = brdf_from_dict(m.to_dict())
         assert type(back) is type(m) and back.channels == m.channels
         np.testing.assert_array_equal(back.kernel_params(), m.kernel_params())

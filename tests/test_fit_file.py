@@ -36,12 +36,23 @@ def test_round_trip_preserves_the_model_exactly(tmp_path, kind):
 
 
 def test_microfacet_model_round_trips_through_the_registry(tmp_path):
+    from fit.analytic import GGX
     from fit.microfacet import MicrofacetBRDF
+    from fit.models import DiffuseBRDF
+    from fit.system import ModelSpec
 
-    brdf = MicrofacetBRDF(alpha=0.2, f0=[0.04, 0.05, 0.06], diffuse=[0.5, 0.4, 0.3], f90=[1.0, 1.0, 1.0])
-    back, _ = load_brdf(save_brdf(tmp_path / "mf.json", brdf, {}))
+    analytic = GGX(alpha=[0.2, 0.3, 0.4], f0=[0.04, 0.05, 0.06], diffuse=[0.5, 0.4, 0.3], f90=1.0, diffuse_sigma=[0.0, 0.2, 0.4])
+    series = DiffuseBRDF(ModelSpec("diffuse", 2, bands=(1, 2)), np.array([[0.01, 0.02, 0.03], [-0.01, 0.0, 0.01]]))
     theta = np.radians([10.0, 50.0])
-    np.testing.assert_allclose(back.evaluate(theta, theta, np.pi), brdf.evaluate(theta, theta, np.pi), rtol=1e-12)
+    for brdf in (MicrofacetBRDF(analytic, series), MicrofacetBRDF(analytic)):
+        back, _ = load_brdf(save_brdf(tmp_path / "mf.json", brdf, {}))
+        np.testing.assert_allclose(back.evaluate(theta, theta, np.pi), brdf.evaluate(theta, theta, np.pi), rtol=1e-12)
+    # the Lambertian-base layout of an older brdfrig: a clear error, not a crash
+    doc = json.loads((tmp_path / "mf.json").read_text())
+    doc["brdf"] = {"model": "microfacet", "alpha": 0.2, "f0": [0.04], "diffuse": [0.5], "f90": [1.0]}
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="refit"):
+        load_brdf(tmp_path / "old.json")
 
 
 def test_other_version_and_corrupt_files_are_clear_errors(tmp_path):

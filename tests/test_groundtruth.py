@@ -129,5 +129,6 @@ def test_ggx_basis_recombines_to_the_ggx_render():
     normals = _normals(40, seed=4)
     basis = render_ggx_basis(0.2, normals, env)
     model = GGX(0.2, [0.04, 0.9], [0.5, 0.1], f90=[1.0, 0.7])
-    combined = np.einsum("ncb,cb->nc", basis, np.stack([model.diffuse, model.f0, model.f90], axis=1))
+    combined = np.einsum("ncb,cb->nc", basis, np.stack([model.f0, model.f90], axis=1))
+    combined += render_groundtruth(Lambertian(model.diffuse), normals, env)
     np.testing.assert_allclose(combined, render_groundtruth(model, normals, env), rtol=1e-12)
