@@ -17,8 +17,8 @@ Pipeline (``../shared/docs/MATH.md``):
 4. Stopping rule (pixels beyond what changes the answer are skipped): pixels
    of all scenes are visited in one random order, in blocks of
    :data:`BLOCK_ROWS`; once at least ``3 n`` rows are in, a cheap, slightly
-   damped least-squares solution (:func:`fit.solvers.probe_solution`, a dense
-   normal-equation solve from the QR factor instead of an SVD) is recomputed
+   damped least-squares solution (:func:`fit.solvers.probe_solution`, a Cholesky
+   solve of the damped normal equations from the QR factor instead of an SVD) is recomputed
    after every block and its predicted radiance on the held-out pixels
    compared with the previous one; the stream stops when that relative
    change stays below ``tol`` (default :data:`STOP_TOL`) for two consecutive blocks.
@@ -26,8 +26,21 @@ Pipeline (``../shared/docs/MATH.md``):
    A model the lighting analysis finds rank-deficient (``full`` from few scenes) is streamed in a
    basis of its design's row space found on the first block (QR of r < n columns, e.g. 146 of 285
    for one scene at l = p = 8), with every later block checked to lie in it (else the stream
-   restarts unreduced); the factor is lifted back to the n unknowns, so the stopping rule, every
-   solver and the reported rank and condition number see the same system (report: ``reduced_stream``).
+   restarts unreduced); the factor is lifted back to the n unknowns, so every
+   solver and the reported rank and condition number see the same system (report: ``reduced_stream``);
+   the stopping rule's probe is solved in the reduced coordinates.
+
+   Speed (``python -m fit.bench_fit_speed``; 512x512 three-channel spheres, ``full`` at l = p = 8,
+   joint solver, 2-core machine shared with other jobs): one scene folds 10 blocks (20480 rows), twelve
+   scenes 39 blocks (79872 rows), and the time goes to the QR updates (LAPACK ``tpqrt``, each channel on
+   its own thread), design assembly (numba kernel over the rotated lighting), the probes and the fixed
+   stages; ``report["stage_seconds"]`` (:data:`STAGES`) has the breakdown of every fit.  Measured there:
+   sphericart's OpenMP threads, woken for every SH evaluation, made each call on a block's pixels of
+   one scene take ~10 ms (4.6 s of a twelve-scene fit): the design evaluates the SH once per block
+   (:func:`fit.system.design_rows`).  Limiting those threads instead (threadpoolctl) corrupted memory
+   once numba's own OpenMP runtime (microfacet fit) ran in the same process.  QR-updating in a
+   worker while assembling the next block saved nothing (GIL waits) and was dropped.
+
 5. Held-out check: a random :data:`HELDOUT_FRACTION` of the pixels (at most
    :data:`HELDOUT_MAX` of them) never enter a fit; each candidate's weighted
    relative RMS error on them is reported.  ``auto`` keeps only candidates the
@@ -40,19 +53,22 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from fit.brdf import FittedBRDF
 from fit.identifiability import THETA_MAX_DEG, analyse_lighting
+from fit.microfacet import fit_microfacet
 from fit.models import make_linear_brdf, plausibility, project_to_full
 from fit.scene import Scene
 from fit.shproject import project_environment
 from fit.solvers import SOLVERS, StreamedQR, numerical_rank, probe_solution, solve
-from fit.system import ModelSpec, design_block
+from fit.system import ModelSpec, design_rows
 
 __all__ = ["FitResult", "fit_brdf", "MODELS", "RICHNESS", "DEFAULT_MAX_THETA_DEG", "STOP_TOL"]
 
@@ -60,7 +76,13 @@ RICHNESS = ("diffuse", "lobe", "microfacet", "full", "full+prior")
 MODELS = ("auto",) + RICHNESS
 DEFAULT_MAX_THETA_DEG = THETA_MAX_DEG
 STOP_TOL = 1e-3
+"""Stopping-rule tolerance: relative change of the held-out prediction from one block to the next.
+Measured on the 512x512 headline (``full``, l = p = 8): one scene stops after 10 blocks (changes
+8e-3, 4e-3, 2.4e-3, 2.2e-3, 1.4e-3, 1.2e-3, 1.2e-3, 9.7e-4, 7.7e-4); twelve scenes after 39 blocks,
+the change hovering at 0.7e-3 to 1.8e-3 from 36k rows on (its noise, not its trend, sets the cost)."""
 BLOCK_ROWS = 2048
+"""Pixels per block of the stream.  Also the stopping rule's step: the change it measures grows with
+the block, so a different block size is a different rule (and a different answer)."""
 HELDOUT_FRACTION = 0.1
 HELDOUT_MAX = 2000
 SELECT_RTOL = 0.02
@@ -77,7 +99,39 @@ along barely excited directions, relit at 2e5 relative error.  Measured (GGX alp
 (0.1: 0.55% / 2.3% / 6.2%: too strong once the data determine the model)."""
 COND_WARN = 1e6
 """Condition number (column-equilibrated) above which the report warns that weakly determined
-directions may relight badly under other lighting."""
+directions may relight badly under other lighting.  For the ``tikhonov`` solver (and ``full+prior``)
+the condition number judged is that of the regularised system solved (report key
+``condition_number_regularised``, :attr:`fit.solvers.Solution.cond_regularised`): a fit the prior
+keeps well determined does not warn."""
+
+
+STAGES = ("gather", "lighting", "identifiability", "design", "qr", "probe", "solve", "other")
+"""Stages of :func:`fit_brdf` timed in ``report["stage_seconds"]``: pixel gathering, lighting projection,
+identifiability analysis, design assembly (rotated lighting and outgoing SH, held-out rows included),
+QR updates (with the reduced-basis SVD and checks), stopping-rule probes, final solves, and the rest
+(microfacet fits, priors, plausibility)."""
+
+
+class _StageClock:
+    """Wall-clock seconds spent per stage (:data:`STAGES`); ``with clock("qr"): ...`` adds to one."""
+
+    def __init__(self) -> None:
+        self.seconds = dict.fromkeys(STAGES, 0.0)
+        self._t0 = time.perf_counter()
+
+    @contextmanager
+    def __call__(self, stage: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[stage] += time.perf_counter() - t0
+
+    def report(self) -> dict:
+        """Seconds per stage; ``other`` is the total minus the timed stages."""
+        out = dict(self.seconds)
+        out["other"] = max(time.perf_counter() - self._t0 - sum(v for k, v in out.items() if k != "other"), 0.0)
+        return out
 
 
 @dataclass
@@ -98,10 +152,30 @@ class _Pool:
     weights: np.ndarray  # (N,)
 
 
+@numba.njit(cache=True, nogil=True)
+def _classify(normals, radiance, weights, cos_max):  # pragma: no cover - compiled
+    """Per pixel: 0 usable, 1 weight not a positive number, 2 a non-finite normal or radiance, 3 normal
+    beyond the limb margin (``n_z < cos_max``).  One pass: the numpy expression of the same masks made
+    six passes and temporaries (measured 0.37 s to gather twelve 512x512 scenes, 0.1 s now)."""
+    out = np.empty(weights.shape[0], np.int8)
+    for i in range(weights.shape[0]):
+        w = weights[i]
+        if not (np.isfinite(w) and w > 0):
+            out[i] = 1
+            continue
+        finite = np.isfinite(normals[i, 0]) and np.isfinite(normals[i, 1]) and np.isfinite(normals[i, 2])
+        for c in range(radiance.shape[1]):
+            finite = finite and np.isfinite(radiance[i, c])
+        out[i] = 2 if not finite else (3 if normals[i, 2] < cos_max else 0)
+    return out
+
+
 def _gather(scenes: list[Scene], max_theta_deg: float) -> tuple[_Pool, dict]:
-    channels = None
-    parts, counts = [], {"pixels": 0, "weight_zero": 0, "non_finite": 0, "beyond_limb_margin": 0, "used": 0}
+    if not scenes:
+        raise ValueError("fit_brdf needs at least one scene")
+    channels, arrays, keeps = None, [], []
     cos_max = math.cos(math.radians(max_theta_deg))
+    tally = np.zeros(4, dtype=np.int64)  # usable, weight_zero, non_finite, beyond_limb_margin
     for k, s in enumerate(scenes):
         n = np.asarray(s.normals, dtype=np.float64)
         b = np.asarray(s.radiance, dtype=np.float64)
@@ -115,21 +189,24 @@ def _gather(scenes: list[Scene], max_theta_deg: float) -> tuple[_Pool, dict]:
             channels = b.shape[1]
         elif b.shape[1] != channels:
             raise ValueError(f"scene {k}: {b.shape[1]} channels, scene 0 has {channels}")
-        finite = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(n), axis=1) & np.isfinite(w)
-        positive = np.where(np.isfinite(w), w, 0.0) > 0
-        inside = np.where(np.isfinite(n[:, 2]), n[:, 2], -1.0) >= cos_max
-        keep = finite & positive & inside
-        counts["pixels"] += len(w)
-        counts["weight_zero"] += int(np.count_nonzero(~positive))
-        counts["non_finite"] += int(np.count_nonzero(positive & ~finite))
-        counts["beyond_limb_margin"] += int(np.count_nonzero(positive & finite & ~inside))
-        counts["used"] += int(np.count_nonzero(keep))
-        parts.append((np.full(np.count_nonzero(keep), k), n[keep], b[keep], w[keep]))
-    if not scenes:
-        raise ValueError("fit_brdf needs at least one scene")
-    pool = _Pool(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
+        code = _classify(n, b, w, cos_max)
+        tally += np.bincount(code, minlength=4)
+        arrays.append((n, b, w))
+        keeps.append(code == 0)
+    counts = {"pixels": int(tally.sum()), "weight_zero": int(tally[1]), "non_finite": int(tally[2]),
+              "beyond_limb_margin": int(tally[3]), "used": int(tally[0])}
     if counts["used"] == 0:
         raise ValueError(f"no usable pixel: {counts}")
+    total = counts["used"]
+    pool = _Pool(np.empty(total, dtype=np.int64), np.empty((total, 3)), np.empty((total, channels)), np.empty(total))
+    start = 0
+    for k, ((n, b, w), keep) in enumerate(zip(arrays, keeps)):
+        stop = start + int(np.count_nonzero(keep))
+        pool.scene[start:stop] = k
+        np.compress(keep, n, axis=0, out=pool.normals[start:stop])
+        np.compress(keep, b, axis=0, out=pool.radiance[start:stop])
+        np.compress(keep, w, axis=0, out=pool.weights[start:stop])
+        start = stop
     return pool, counts
 
 
@@ -149,11 +226,9 @@ def _lighting(scenes: list[Scene], lmax: int) -> list[np.ndarray]:
 
 
 def _design(spec: ModelSpec, coeffs: list[np.ndarray], pool: _Pool, idx: np.ndarray) -> np.ndarray:
-    """Design rows (len(idx), n, C) of pixels ``idx`` (sorted: the pool is in scene order, so each scene is one run)."""
-    sc = pool.scene[idx]
-    edges = [0, *(np.flatnonzero(np.diff(sc)) + 1).tolist(), len(idx)]
-    parts = [design_block(spec, coeffs[sc[a]], pool.normals[idx[a:b]]) for a, b in zip(edges[:-1], edges[1:])]
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+    """Design rows (len(idx), n, C) of pixels ``idx`` (sorted: the pool is in scene order, so each scene is one run),
+    laid out by :func:`fit.system.design_rows` (each channel's rows one Fortran-ordered matrix)."""
+    return design_rows(spec, coeffs, pool.scene[idx], pool.normals[idx])
 
 
 def _rel_error(pred: np.ndarray, target: np.ndarray, weights: np.ndarray) -> float:
@@ -178,7 +253,6 @@ REDUCE_OUTSIDE_RTOL = 1e-11
 """A later block whose (sketched, column-equilibrated) rows have more than this relative norm outside the
 basis adds rank: the stream starts again unreduced."""
 _SKETCH_ROWS = 8
-_CHECK_ROWS = 512
 
 
 @dataclass
@@ -236,55 +310,60 @@ def _outside(design: np.ndarray, sw: np.ndarray, basis: _Basis, rng: np.random.G
     """Largest relative norm, over channels, of a Gaussian sketch of weighted rows outside the basis.
 
     ``design @ null[c]`` are the coordinates of the column-equilibrated rows outside the row space.  The
-    sketch combines :data:`_CHECK_ROWS` random rows of the block (pixels are in random order, so a
-    pixel population that adds rank shows up in the first blocks' samples with probability ~1).
+    sketch combines all rows of the block with :data:`_SKETCH_ROWS` sets of Gaussian weights: a pixel
+    population that adds rank shows up with probability 1.  (It used to combine 512 sampled rows; the
+    row gather cost more than sketching the whole block: each channel's rows are one Fortran-ordered
+    matrix, see :func:`_design`.)
     """
-    nb, _, channels = design.shape
-    rows = np.sort(rng.choice(nb, min(nb, _CHECK_ROWS), replace=False))
-    sub = design[rows]  # a C-ordered copy (the block itself is not, and copying it all cost more than the saving)
-    sketch = (rng.standard_normal((_SKETCH_ROWS, len(rows))) * sw[rows]) @ sub.reshape(len(rows), -1)
-    sketch = sketch.reshape(_SKETCH_ROWS, *design.shape[1:])
+    g = rng.standard_normal((_SKETCH_ROWS, design.shape[0])) * sw
     worst = 0.0
-    for c in range(channels):
-        s = sketch[:, :, c]  # (k, n)
+    for c in range(design.shape[2]):
+        s = g @ design[:, :, c]  # (k, n)
         inside, out = np.linalg.norm(s @ basis.w[c]), np.linalg.norm(s @ basis.null[c])
         worst = max(worst, out / max(math.hypot(inside, out), 1e-300))
     return worst
 
 
-def _stream(spec, coeffs, pool, train, held, tol, progress, label, reduce=False) -> _Stream:
+def _stream(spec, coeffs, pool, train, held, tol, progress, label, clock, reduce=False) -> _Stream:
     """Fold random pixel blocks into the QR factor until the stopping rule holds (module docstring, step 4).
 
     ``reduce``: when the first block shows the design rank-deficient (:func:`_reduced_basis`), the rest
     is folded in the reduced basis (QR of r instead of n columns) and the factor lifted back for the
     stopping rule and the solvers (same system up to rounding); if a later block adds rank, the stream
-    starts again unreduced.
+    starts again unreduced.  ``clock``: a :class:`_StageClock`.
+
+    (Folding block k on a worker thread while block k + 1's design is assembled was tried and dropped:
+    on the loaded 2-core machine the main thread then waited for the GIL about as long as it saved.)
     """
     t0 = time.perf_counter()
-    a_h = _design(spec, coeffs, pool, held)
+    with clock("design"):
+        a_h = _design(spec, coeffs, pool, held)
     qr = StreamedQR(spec.n_unknowns, pool.radiance.shape[1])
     basis, rng = None, np.random.default_rng(0)
     prev, stable, converged, consumed = None, 0, False, 0
     blocks = range(0, len(train), BLOCK_ROWS)
     for start in tqdm(blocks, desc=f"fit {label}", unit="block", disable=not progress, leave=False):
         idx = np.sort(train[start : start + BLOCK_ROWS])  # row order is irrelevant to QR; sorted = one slice per scene
-        design, w = _design(spec, coeffs, pool, idx), pool.weights[idx]
-        if basis is None:
-            qr.add(design, pool.radiance[idx], w)
-        elif _outside(design, np.sqrt(w), basis, rng) > REDUCE_OUTSIDE_RTOL:
-            return _stream(spec, coeffs, pool, train, held, tol, progress, label, reduce=False)
-        else:
-            qr.add(design, pool.radiance[idx], w, basis.w)
-        consumed = start + len(idx)
-        if reduce and start == 0 and qr.rows >= 3 * spec.n_unknowns:
-            basis = _reduced_basis(qr)
-            if basis is not None:
-                qr = StreamedQR(basis.back.shape[1], qr.channels)
+        with clock("design"):
+            design, w = _design(spec, coeffs, pool, idx), pool.weights[idx]
+        with clock("qr"):
+            if basis is None:
+                qr.add(design, pool.radiance[idx], w)
+            elif _outside(design, np.sqrt(w), basis, rng) > REDUCE_OUTSIDE_RTOL:
+                return _stream(spec, coeffs, pool, train, held, tol, progress, label, clock, reduce=False)
+            else:
                 qr.add(design, pool.radiance[idx], w, basis.w)
-        full = qr if basis is None else qr.lifted(basis.back)
-        if full.rows < 3 * spec.n_unknowns or len(held) == 0:
+            consumed = start + len(idx)
+            if reduce and start == 0 and qr.rows >= 3 * spec.n_unknowns:
+                basis = _reduced_basis(qr)
+                if basis is not None:
+                    qr = StreamedQR(basis.back.shape[1], qr.channels)
+                    qr.add(design, pool.radiance[idx], w, basis.w)
+        if qr.rows < 3 * spec.n_unknowns or len(held) == 0:
             continue
-        pred = np.einsum("inc,nc->ic", a_h, probe_solution(full))
+        with clock("probe"):
+            x = probe_solution(qr)  # in the reduced basis's coordinates when streaming reduced
+            pred = np.einsum("inc,nc->ic", a_h, x if basis is None else np.einsum("cnr,rc->nc", basis.w, x))
         if prev is not None:
             change = np.linalg.norm(pred - prev) / max(np.linalg.norm(pred), 1e-300)
             stable = stable + 1 if change < tol else 0
@@ -296,12 +375,13 @@ def _stream(spec, coeffs, pool, train, held, tol, progress, label, reduce=False)
     return _Stream(spec, full, a_h, consumed, converged, time.perf_counter() - t0, None if basis is None else qr.n)
 
 
-def _solve_stream(st: _Stream, pool, train, held, solver, x0, lam_min=None) -> tuple[np.ndarray, dict]:
+def _solve_stream(st: _Stream, pool, train, held, solver, x0, clock, lam_min=None) -> tuple[np.ndarray, dict]:
     """Solve a streamed system with ``solver`` (prior ``x0``, Tikhonov floor ``lam_min``); the report entry."""
     t0 = time.perf_counter()
     spec, n = st.spec, st.spec.n_unknowns
     floor = {} if lam_min is None else {"lam_min": lam_min}
-    sol = solve(st.qr, solver, bands=spec.column_band, x0=x0, **floor)
+    with clock("solve"):
+        sol = solve(st.qr, solver, bands=spec.column_band, x0=x0, **floor)
     used = train[: st.consumed]
     energy = float(np.sum(pool.weights[used, None] * pool.radiance[used] ** 2))
     held_err = None
@@ -315,6 +395,7 @@ def _solve_stream(st: _Stream, pool, train, held, solver, x0, lam_min=None) -> t
         "solver": solver,
         "rank": sol.rank.tolist(),
         "condition_number": sol.cond.tolist(),
+        "condition_number_regularised": None if sol.cond_regularised is None else sol.cond_regularised.tolist(),
         "full_rank": bool(np.all(sol.rank == n)),
         "reduced_stream": None if st.reduced_columns is None else (
             f"rows streamed in a {st.reduced_columns}-column basis of the design's row space (found on the "
@@ -332,21 +413,19 @@ def _solve_stream(st: _Stream, pool, train, held, solver, x0, lam_min=None) -> t
     return sol.x, info
 
 
-def _microfacet(scenes, pool, held, progress):
-    try:
-        from fit.microfacet import fit_microfacet
-    except ImportError:
-        return None, {"available": False, "reason": "fit.microfacet is not installed"}
+def _microfacet(scenes, pool, train, held, lmax, bands, progress):
+    """Fit ``microfacet`` on the training pixels of the pool (limb margin applied, held-out pixels kept out)."""
     t0 = time.perf_counter()
-    brdf, rep = fit_microfacet(scenes, progress=progress)
+    mine = [train[pool.scene[train] == k] for k in range(len(scenes))]
+    fit_scenes = [Scene(s.env, pool.normals[r], pool.radiance[r], pool.weights[r]) for s, r in zip(scenes, mine)]
+    brdf, rep = fit_microfacet(fit_scenes, lmax=lmax, bands=bands, progress=progress)
     pred = np.empty_like(pool.radiance[held])
     for s in np.unique(pool.scene[held]):
         rows = np.flatnonzero(pool.scene[held] == s)
         pred[rows] = brdf.predict(scenes[s].env, pool.normals[held[rows]])
     info = {
-        "available": True,
         "heldout_relative_rms": _rel_error(pred, pool.radiance[held], pool.weights[held]) if len(held) else None,
-        "full_rank": not rep.get("alpha_at_bound", False),
+        "full_rank": rep["determined"],
         "fit_report": rep,
         "seconds": time.perf_counter() - t0,
     }
@@ -373,7 +452,7 @@ def fit_brdf(
         Each: lighting (``Environment``) and the sphere's pixels (normals, radiance, weights).
     model : {"auto", "diffuse", "lobe", "microfacet", "full", "full+prior"}
         ``full+prior`` is ``full`` solved by Tikhonov (GCV, lambda >= :data:`PRIOR_LAM_MIN`,
-        larger where identifiability calls ``full`` undetermined) toward the projection of the best identifiable fit (``microfacet`` if available, else ``lobe``).
+        larger where identifiability calls ``full`` undetermined) toward the projection of the ``microfacet`` fit.
         ``full`` alone is solved as asked even when undetermined (minimum norm;
         the report says so); ``auto`` never picks an undetermined model.
     lmax, pmax : int
@@ -392,6 +471,7 @@ def fit_brdf(
     Returns
     -------
     FitResult
+        Its report also holds ``seconds`` (wall clock) and ``stage_seconds`` (per :data:`STAGES`).
     """
     # The blocks are small (a few thousand x a few hundred): multithreaded BLAS only
     # adds contention (measured 15-30x slower QR on a loaded 2-core machine).
@@ -407,11 +487,15 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     if lmax < 0 or pmax < 0:
         raise ValueError(f"band limits must be >= 0 (lmax={lmax}, pmax={pmax})")
     t0 = time.perf_counter()
-    pool, counts = _gather(scenes, max_theta_deg)
-    coeffs = _lighting(scenes, lmax)
+    clock = _StageClock()
+    with clock("gather"):
+        pool, counts = _gather(scenes, max_theta_deg)
+    with clock("lighting"):
+        coeffs = _lighting(scenes, lmax)
     wanted = RICHNESS if model == "auto" else (model,)
     kinds = tuple(k for k in ("diffuse", "lobe", "full") if any(w.startswith(k) for w in wanted))
-    ident = analyse_lighting(coeffs, lmax, pmax, models=kinds, theta_max_deg=max_theta_deg)
+    with clock("identifiability"):
+        ident = analyse_lighting(coeffs, lmax, pmax, models=kinds, theta_max_deg=max_theta_deg)
     bands = tuple(ident.observable_bands)
     if not bands:
         raise ValueError("the lighting has no energy in any band: nothing can be measured")
@@ -434,12 +518,12 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
             # (the first block decides; the hint spares full-rank models its SVD).
             entry = ident.models.get(kind, {}) if spec_lmax == lmax else {}
             reduce = entry.get("rank", spec.n_unknowns) <= REDUCE_MAX_FRACTION * spec.n_unknowns
-            streams[spec] = _stream(spec, coeffs, pool, train, held, tol, progress, name, reduce=reduce)
+            streams[spec] = _stream(spec, coeffs, pool, train, held, tol, progress, name, clock, reduce=reduce)
         x0, lam_min = None, None
         if x0_brdf is not None:
             x0 = project_to_full(x0_brdf, spec)
             lam_min = PRIOR_LAM_MIN[spec_lmax <= ident.full_lmax_determined]
-        x, info = _solve_stream(streams[spec], pool, train, held, use_solver, x0, lam_min)
+        x, info = _solve_stream(streams[spec], pool, train, held, use_solver, x0, clock, lam_min)
         fitted[name] = make_linear_brdf(spec, x)
         candidates[name] = info
 
@@ -447,28 +531,20 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         if name in ("diffuse", "lobe"):
             linear(name, name, lmax)
         elif name == "microfacet":
-            brdf, info = _microfacet(scenes, pool, held, progress)
-            candidates[name] = info
-            if brdf is not None:
-                fitted[name] = brdf
+            fitted[name], candidates[name] = _microfacet(scenes, pool, train, held, lmax, bands, progress)
         elif full_lmax < 0 or (model == "auto" and full_lmax < 1):
             candidates[name] = {"skipped": "the lighting separates no full-model band limit >= 1 (needs >= 2 differing scenes)"}
         elif name == "full":
             linear("full", name, full_lmax)
         else:  # full+prior: Tikhonov toward the best identifiable fit
-            if "microfacet" not in fitted and "lobe" not in fitted:  # requested alone: fit the prior first
-                brdf, info = _microfacet(scenes, pool, held, progress)
-                if brdf is None:
-                    linear("lobe", "lobe", lmax)
-                else:
-                    candidates["microfacet"], fitted["microfacet"] = info, brdf
-            prior_name = "microfacet" if "microfacet" in fitted else "lobe"
-            linear("full", name, full_lmax, x0_brdf=fitted[prior_name], use_solver="tikhonov")
-            candidates[name]["prior"] = prior_name
+            if "microfacet" not in fitted:  # requested alone: fit the prior first
+                fitted["microfacet"], candidates["microfacet"] = _microfacet(scenes, pool, train, held, lmax, bands, progress)
+            linear("full", name, full_lmax, x0_brdf=fitted["microfacet"], use_solver="tikhonov")
+            candidates[name]["prior"] = "microfacet"
 
     # Determinacy of each candidate: lighting (identifiability) and pixels (achieved rank).
     for name, info in candidates.items():
-        if "skipped" in info or not info.get("available", True):
+        if "skipped" in info:
             info["determined"] = False
             continue
         if name in ("diffuse", "lobe"):
@@ -511,13 +587,13 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     if counts["non_finite"]:
         warnings.append(f"{counts['non_finite']} non-finite pixel(s) ignored")
     info = candidates[chosen]
-    cond = max(info.get("condition_number") or [0.0])
+    regularised = info.get("solver") == "tikhonov"  # judge the system actually solved
+    cond = max(info.get("condition_number_regularised" if regularised else "condition_number") or [0.0])
     if cond > COND_WARN:
-        remedies = "fewer bands or more scenes" if info.get("solver") == "tikhonov" else (
-            "try tikhonov, fewer bands or more scenes")
+        remedies = "fewer bands or more scenes" if regularised else "try tikhonov, fewer bands or more scenes"
         warnings.append(
-            f"{chosen}: condition number {cond:.3g} > {COND_WARN:g}: directions the lighting barely excites "
-            f"may relight badly under other lighting ({remedies})"
+            f"{chosen}: {'regularised ' if regularised else ''}condition number {cond:.3g} > {COND_WARN:g}: "
+            f"directions the lighting barely excites may relight badly under other lighting ({remedies})"
         )
     if chosen in fitted and not info["plausibility"]["plausible"]:
         warnings.append(
@@ -550,5 +626,6 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         "candidates": candidates,
         "warnings": warnings,
         "seconds": time.perf_counter() - t0,
+        "stage_seconds": clock.report(),
     }
     return FitResult(brdf=fitted[chosen], report=report)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,54 @@ def test_reduced_basis_stream_lifted_back_solves_like_the_full_stream():
         d = np.linalg.norm(ad, axis=0)
         y = np.linalg.lstsq(ad / d, bd, rcond=1e-9)[0]
         np.testing.assert_allclose(solve(lifted, "joint").x[:, k], y / d, rtol=1e-7, atol=1e-9 * np.abs(y / d).max())
+
+
+def test_streamed_factor_is_the_dense_householder_factor():
+    """The ``tpqrt`` updates give the triangular factor of the whole weighted ``[A | b]`` (numpy's dense QR,
+    up to the sign of each row), whatever the block sizes."""
+    a, b, w, _ = _problem(m=700, n=15, c=2)
+    qr = _stream(a, b, w, sizes=(1, 5, 333, 40))
+    for c in range(2):
+        ad, bd = _dense(a, b, w, c)
+        ref = np.linalg.qr(np.column_stack([ad, bd]), mode="r")
+        got = qr._r[c] * (np.sign(np.diag(ref)) * np.sign(np.diag(qr._r[c])))[:, None]
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    assert qr.rows == np.count_nonzero(w)
+
+
+def test_probe_solution_is_the_damped_least_squares_solution():
+    """Oracle: numpy's lstsq of the explicitly stacked ``[A / d; mu I] y = [b; 0]`` (dense, SVD-based)."""
+    from fit.solvers import PROBE_DAMPING, probe_solution
+
+    a, b, w, _ = _problem(n=10, c=2)
+    a[:, 7, :] = 2.0 * a[:, 3, :]  # rank-deficient: only the damping makes the answer unique
+    x = probe_solution(_stream(a, b, w))
+    for c in range(2):
+        ad, bd = _dense(a, b, w, c)
+        d = np.linalg.norm(ad, axis=0)
+        mu = PROBE_DAMPING * np.sqrt(ad.shape[1])
+        y = np.linalg.lstsq(np.vstack([ad / d, mu * np.eye(10)]), np.concatenate([bd, np.zeros(10)]), rcond=None)[0]
+        np.testing.assert_allclose(x[:, c], y / d, rtol=0, atol=1e-7 * np.abs(y / d).max())
+
+
+@pytest.mark.parametrize("singular", [False, True])
+def test_tikhonov_reports_the_condition_number_of_the_regularised_system(singular):
+    """``cond_regularised`` is the 2-norm condition number of the stacked ``[A / d; lam I]`` actually solved
+    (numpy SVD of the explicit matrix), finite where the data system's is inf; other solvers report None."""
+    rng = np.random.default_rng(5)
+    m, n = 300, 8
+    t = np.linspace(0, 1, m)
+    a = np.stack([t**k for k in range(n)], axis=1)[:, :, None]
+    if singular:
+        a[:, 5, 0] = 3.0 * a[:, 2, 0]
+    b = a[:, :3, 0].sum(axis=1, keepdims=True) + 1e-3 * rng.normal(size=(m, 1))
+    qr = _stream(a, b, np.ones(m))
+    tik = solve(qr, "tikhonov", lam_min=1e-4)
+    ad = a[:, :, 0] / np.linalg.norm(a[:, :, 0], axis=0)
+    lam = tik.lam[0] * np.linalg.svd(ad, compute_uv=False)[0]
+    s = np.linalg.svd(np.vstack([ad, lam * np.eye(n)]), compute_uv=False)
+    print(f"singular={singular}: data cond {tik.cond[0]:.3g}, regularised {tik.cond_regularised[0]:.6g}, oracle {s[0] / s[-1]:.6g}")
+    assert tik.cond_regularised[0] == pytest.approx(s[0] / s[-1], rel=1e-9)
+    assert tik.cond_regularised[0] <= math.sqrt(1 + 1e8) * (1 + 1e-9)  # lam >= 1e-4 s_max
+    assert np.isinf(tik.cond[0]) == singular
+    assert solve(qr, "joint").cond_regularised is None and solve(qr, "paper", bands=np.arange(n)).cond_regularised is None
