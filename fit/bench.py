@@ -10,18 +10,41 @@ models ``diffuse``, ``lobe`` and ``full`` are fitted with each solver
 limit, and ``microfacet`` (no band limit) once, all through
 :func:`fit.fitter.fit_brdf`; the fitted BRDF relights
 the sphere under a DIFFERENT lighting and is compared with the ground truth
-there (relative RMS over the weighted pixels).  Times are wall-clock medians
-of repeated fits, progress bars off.
+there (relative RMS over the weighted pixels).
+
+Plan (what makes the full run take minutes instead of ~15).  Measured phase by
+phase (2-core machine, load average ~3.5 from other jobs, one full run of 434 s):
+ground truth 12 s (3%), warm-up 1 s, table fits 405 s (94%), headline 14 s.
+Inside the table's fits, 54% is the microfacet prior that every ``full+prior``
+fit refits (the same fit at each of the 12 band limits; 200 s), then
+identifiability 15%, design 9%, QR 9%, lighting projection 7%.
+
+- The ground truth is rendered once per lighting (each rotated fit lighting,
+  the test lighting) and shared by every case and by the headline images; the
+  renderer is passed in, so ``capture`` can cache renders on disk keyed by
+  their inputs.
+- One untimed warm-up fit (``auto``, every model, on a tiny sphere) first:
+  numba kernels load and tables are built before any timing.
+- Timing rule (:func:`time_runs`): every case is fitted once; a case faster
+  than :data:`FAST_S` gets ``runs`` (3) fits and reports their median;
+  slower cases get further runs (up to ``runs``) only while the projected
+  total of the table stays within ``BenchConfig.budget_s``.  Each row
+  records its run times (``n`` column).
+- Cases run in a fixed random order, so the progress bar's rate-based ETA is
+  an unbiased estimate of the remaining time (the cost of a case varies
+  ~1000-fold with model, band limit and scene count); the table is sorted.
 
 Headline timings: a 512x512 three-channel fit of ``full`` at ``l = p = 8``
-with twelve scenes and with one scene (``--quick``: 48x48 at ``l = p = 3``).  Their images are the ground-truth
+with twelve scenes and with one scene (``--quick``: 48x48 at ``l = p = 3``),
+median of ``runs`` fits each.  Their images are the ground-truth
 renders of the table's sphere resampled (bilinear, in normal space) onto the
 512x512 pixel grid: timing depends on the pixel count, not on the image
 content, and brute-force rendering 12 x 512^2 pixels would dominate the
 benchmark.
 
-This module takes plain environments and a sphere-geometry callable;
-``capture/cmd_bench.py`` loads the maps.
+This module takes plain environments, a sphere-geometry callable and a
+ground-truth renderer; ``capture/cmd_bench.py`` loads the maps and caches the
+renders.
 """
 
 from __future__ import annotations
@@ -30,9 +53,9 @@ import math
 import os
 import statistics
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Callable
+from typing import Callable, TypeVar
 
 import numpy as np
 
@@ -44,18 +67,23 @@ __all__ = [
     "MODELS",
     "SOLVERS",
     "TRUTH",
+    "FAST_S",
     "BenchConfig",
     "BenchRow",
     "BenchResult",
     "QUICK",
     "FULL",
+    "plan_cases",
     "rotate_environment",
+    "time_runs",
     "run_benchmark",
     "format_table",
     "format_solver_comparison",
+    "format_phases",
     "pareto_front",
     "plot_pareto",
     "rows_to_json",
+    "result_from_json",
 ]
 
 MODELS = ("diffuse", "lobe", "full", "full+prior", "microfacet")
@@ -63,11 +91,16 @@ SOLVERS = ("paper", "joint", "tikhonov")
 TRUTH = GGX(alpha=0.3, f0=0.04, diffuse=(0.6, 0.4, 0.2))
 """The benchmark's material: GGX alpha = 0.3, dielectric Fresnel f0 = 0.04, orange Lambertian base."""
 
-TIME_BUDGET_S = 4.0
-"""Repeated fits of one case stop once their total time exceeds this (slow cases get fewer runs)."""
+FAST_S = 1.0
+"""A case whose first fit takes less than this (seconds) is always fitted ``runs`` times (median reported)."""
 
 SphereGeometry = Callable[[int], tuple[np.ndarray, np.ndarray]]
 """``size -> (normals (N, 3), weights (N,))`` of the pixels of a size x size sphere image (MATH.md)."""
+
+GroundTruth = Callable[[object, np.ndarray, Environment], np.ndarray]
+"""``(brdf, normals (N, 3), env) -> (N, C)`` radiance, as :func:`fit.groundtruth.render_groundtruth`."""
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -83,11 +116,14 @@ class BenchConfig:
     scene_counts : tuple of int
         Numbers of scenes (1 = the fit lighting; 12 = turned in 30 degree steps).
     runs : int
-        Fits per timing (the median is reported).
+        Fits per timing (the median is reported); cases slower than :data:`FAST_S` may get fewer.
     headline_size : int
         Image size of the headline timings (0 = skip them).
     headline_lmax : int
         Band limit ``l = p`` of the headline timings (8 in the full benchmark).
+    budget_s : float
+        Soft budget (seconds) of the table's fits: repeats of slow cases stop when the projected total
+        would exceed it (every case is still fitted once, fast cases ``runs`` times).
     """
 
     sphere_size: int
@@ -96,15 +132,21 @@ class BenchConfig:
     runs: int
     headline_size: int
     headline_lmax: int = 8
+    budget_s: float = math.inf
 
 
-QUICK = BenchConfig(sphere_size=32, lmax_values=(1, 2, 3), scene_counts=(1,), runs=1, headline_size=48, headline_lmax=3)
-FULL = BenchConfig(sphere_size=64, lmax_values=tuple(range(1, 13)), scene_counts=(1, 12), runs=3, headline_size=512)
+QUICK = BenchConfig(sphere_size=32, lmax_values=(1, 2, 3), scene_counts=(1,), runs=3, headline_size=48, headline_lmax=3,
+                    budget_s=20.0)
+FULL = BenchConfig(sphere_size=64, lmax_values=tuple(range(1, 13)), scene_counts=(1, 12), runs=3, headline_size=512,
+                   budget_s=210.0)
 
 
 @dataclass
 class BenchRow:
-    """One benchmark measurement (``solver``/``lmax`` are ``"-"``/0 for the microfacet model)."""
+    """One benchmark measurement (``solver``/``lmax`` are ``"-"``/0 for the microfacet model).
+
+    ``seconds`` is the median of ``times`` (wall clock of each :func:`fit.fitter.fit_brdf` call).
+    """
 
     model: str
     solver: str
@@ -114,15 +156,23 @@ class BenchRow:
     relight_error: float
     rank: int | None
     condition: float | None
+    times: tuple[float, ...] = ()
+
+    @property
+    def runs(self) -> int:
+        return len(self.times)
 
 
 @dataclass
 class BenchResult:
-    """All rows, the headline timings and the lighting used.
+    """All rows, the headline timings, the lighting used and where the benchmark's time went.
 
     ``headline`` maps a scene count to the median seconds of the ``full``
     ``l = p = headline_lmax`` joint fit of ``headline_size`` x ``headline_size``
-    three-channel images.
+    three-channel images; ``headline_times`` to all its run times.  ``phases``
+    maps a phase name to wall seconds (:func:`format_phases`), ``fit_stages``
+    a stage of :func:`fit.fitter.fit_brdf` to its seconds summed over every
+    timed fit of the table.
     """
 
     rows: list[BenchRow]
@@ -130,6 +180,9 @@ class BenchResult:
     headline_size: int = 0
     headline_lmax: int = 8
     lighting: str = ""
+    headline_times: dict[int, tuple[float, ...]] = field(default_factory=dict)
+    phases: dict[str, float] = field(default_factory=dict)
+    fit_stages: dict[str, float] = field(default_factory=dict)
 
 
 def rotate_environment(env: Environment, angle_rad: float) -> Environment:
@@ -174,17 +227,58 @@ def _fit(scenes: list[Scene], model: str, solver: str, lmax: int):
     return fit_brdf(scenes, model=model, lmax=lmax, pmax=lmax, solver=solver, progress=False)
 
 
-def _timed(scenes: list[Scene], model: str, solver: str, lmax: int, runs: int, budget_s: float = TIME_BUDGET_S):
-    """(median seconds, last FitResult) over up to ``runs`` fits; stops repeating after ``budget_s`` seconds.
+def time_runs(
+    fit: Callable[[], T], runs: int, extra_ok: Callable[[float], bool], fast_s: float = FAST_S
+) -> tuple[list[float], T]:
+    """Wall times of repeated calls of ``fit`` and its last result: the benchmark's timing rule.
 
-    Only :func:`fit.fitter.fit_brdf` is timed (scenes are built beforehand): the work a user's fit does.
+    ``fit`` runs once; if that took less than ``fast_s`` seconds it runs ``runs`` times in all.
+    Otherwise each further run (up to ``runs``) happens only if ``extra_ok(median so far)`` says the
+    time budget allows it.  Only ``fit`` is timed (inputs are built beforehand).
+
+    Returns
+    -------
+    (times in seconds, result of the last call)
     """
-    times, result = [], None
-    while len(times) < runs and sum(times) < budget_s:
+    times: list[float] = []
+    result = None
+    while len(times) < runs:
+        if times and times[0] >= fast_s and not extra_ok(statistics.median(times)):
+            break
         t0 = time.perf_counter()
-        result = _fit(scenes, model, solver, lmax)
+        result = fit()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times), result
+    return times, result
+
+
+def plan_cases(config: BenchConfig) -> list[tuple[str, str, int, int]]:
+    """``(model, solver, l = p, scenes)`` of every table row, in table order.
+
+    ``full+prior`` is always solved by Tikhonov toward the prior (:mod:`fit.fitter`): one row per band
+    limit; ``microfacet`` has no band limit (``"-"``, 0).
+    """
+    cases = [(m, s, l, n) for n in config.scene_counts for m in ("diffuse", "lobe", "full")
+             for s in SOLVERS for l in config.lmax_values]
+    cases += [("full+prior", "tikhonov", l, n) for n in config.scene_counts for l in config.lmax_values]
+    cases += [("microfacet", "-", 0, n) for n in config.scene_counts]
+    return cases
+
+
+def _warm_up(sphere: SphereGeometry, env: Environment, groundtruth: GroundTruth) -> None:
+    """Untimed ``auto`` (diffuse, lobe, microfacet) and ``full`` fits of a tiny sphere: numba kernels load, tables get built."""
+    from fit.fitter import fit_brdf
+
+    normals, weights = sphere(12)
+    seen = weights > 0
+    scenes = [Scene(env, normals[seen], groundtruth(TRUTH, normals[seen], env), weights[seen])]
+    for model in ("auto", "full"):
+        fit_brdf(scenes, model=model, lmax=2, pmax=2, progress=False)
+
+
+def _add_stages(total: dict[str, float], report: dict) -> None:
+    """Add a fit's ``stage_seconds`` (if the fitter reports them) to ``total``."""
+    for stage, seconds in report.get("stage_seconds", {}).items():
+        total[stage] = total.get(stage, 0.0) + float(seconds)
 
 
 def run_benchmark(
@@ -195,6 +289,7 @@ def run_benchmark(
     *,
     lighting: str = "",
     progress: bool = True,
+    groundtruth: GroundTruth = render_groundtruth,
 ) -> BenchResult:
     """Run the benchmark (see module docstring).
 
@@ -208,51 +303,87 @@ def run_benchmark(
     lighting : str
         Description of the maps, carried into the result.
     progress : bool
-        tqdm progress bars on stderr.
+        tqdm progress bars on stderr (the table's bar shows cases done / total and an ETA).
+    groundtruth : callable
+        ``(brdf, normals, env) -> radiance`` (default :func:`fit.groundtruth.render_groundtruth`;
+        ``capture`` passes a disk-cached one).  Called once per lighting.
     """
     from tqdm import tqdm
 
+    phases: dict[str, float] = {}
+    t_phase = time.perf_counter()
     normals, weights = sphere(config.sphere_size)
     seen = weights > 0
     normals, weights = normals[seen], weights[seen]
     max_scenes = max(config.scene_counts)
     envs = [rotate_environment(fit_env, math.radians(30 * k)) for k in range(max_scenes)]
-    images = [render_groundtruth(TRUTH, normals, e) for e in tqdm(envs, desc="ground truth", disable=not progress)]
-    truth_test = render_groundtruth(TRUTH, normals, test_env)
+    images = [groundtruth(TRUTH, normals, e) for e in tqdm(envs, desc="ground truth", disable=not progress)]
+    truth_test = groundtruth(TRUTH, normals, test_env)
+    phases["ground truth"] = time.perf_counter() - t_phase
 
-    # full+prior is always solved by Tikhonov toward the prior (fit.fitter): one solver row per band limit.
-    cases = [(m, s, l, n) for n in config.scene_counts for m in ("diffuse", "lobe", "full")
-             for s in SOLVERS for l in config.lmax_values]
-    cases += [("full+prior", "tikhonov", l, n) for n in config.scene_counts for l in config.lmax_values]
-    cases += [("microfacet", "-", 0, n) for n in config.scene_counts]
-    rows = []
-    for model, solver, lmax, count in tqdm(cases, desc="fits", disable=not progress):
-        scenes = [Scene(envs[k], normals, images[k], weights) for k in range(count)]
-        seconds, result = _timed(scenes, model, solver, lmax, config.runs)
+    t_phase = time.perf_counter()
+    _warm_up(sphere, fit_env, groundtruth)
+    phases["warm-up"] = time.perf_counter() - t_phase
+
+    # The rotated environments and their renders are shared by every case (scenes are views of them).
+    scenes_of = {n: [Scene(envs[k], normals, images[k], weights) for k in range(n)] for n in config.scene_counts}
+    cases = plan_cases(config)
+    # A fixed random order makes tqdm's rate-based ETA unbiased (case costs span three decades).
+    order = np.random.default_rng(0).permutation(len(cases))
+    rows: dict[int, BenchRow] = {}
+    stages: dict[str, float] = {}
+    t_table = time.perf_counter()
+    bar = tqdm(order, desc="fits", unit="case", disable=not progress)
+    for done, i in enumerate(bar):
+        model, solver, lmax, count = cases[i]
+        bar.set_postfix_str(f"{model} {solver} l={lmax} scenes={count}", refresh=True)
+        started = time.perf_counter() - t_table
+        left = len(cases) - done - 1
+
+        def extra_ok(run_s: float) -> bool:
+            """Another run fits the budget, the cases left costing the mean of those done (this one's if none)."""
+            mean = started / done if done else run_s
+            return time.perf_counter() - t_table + run_s + left * mean <= config.budget_s
+
+        def fit():
+            res = _fit(scenes_of[count], model, solver, lmax)
+            _add_stages(stages, res.report)
+            return res
+
+        times, result = time_runs(fit, config.runs, extra_ok)
         err = _relative_rms(result.brdf.predict(test_env, normals), truth_test, weights)
         rank, cond = _stats(result.report, model)
-        rows.append(BenchRow(model, solver, lmax, count, seconds, err, rank, cond))
+        rows[i] = BenchRow(model, solver, lmax, count, statistics.median(times), err, rank, cond, tuple(times))
+    bar.close()
+    phases["table fits"] = time.perf_counter() - t_table
 
-    headline = {}
+    headline, headline_times = {}, {}
     if config.headline_size:
+        t_phase = time.perf_counter()
         big_normals, big_weights = sphere(config.headline_size)
         big = [_resample(img, normals, config.sphere_size, big_normals) for img in images]
-        for count in sorted({1, max_scenes}):
+        counts = sorted({1, max_scenes})
+        for count in tqdm(counts, desc="headline", disable=not progress):
             scenes = [Scene(envs[k], big_normals, big[k], big_weights) for k in range(count)]
-            # Every run counts here (no time budget): the headline is a median, not one possibly cold run.
-            headline[count] = _timed(scenes, "full", "joint", config.headline_lmax, config.runs, budget_s=math.inf)[0]
-    return BenchResult(rows, headline, config.headline_size, config.headline_lmax, lighting)
+            # Every run counts here (no budget): the headline is a median, not one possibly unlucky run.
+            times, _ = time_runs(lambda: _fit(scenes, "full", "joint", config.headline_lmax), config.runs, lambda s: True)
+            headline[count], headline_times[count] = statistics.median(times), tuple(times)
+        phases["headline"] = time.perf_counter() - t_phase
+    return BenchResult([rows[i] for i in range(len(cases))], headline, config.headline_size, config.headline_lmax,
+                       lighting, headline_times, phases, stages)
 
 
 def format_table(rows: list[BenchRow]) -> str:
-    """Fixed-width table of all rows."""
-    head = f"{'model':<11} {'solver':<9} {'l=p':>3} {'scenes':>6} {'time_s':>8} {'relight_err':>11} {'rank':>5} {'cond':>9}"
+    """Fixed-width table of all rows (``n`` = fits timed; ``time_s`` = their median)."""
+    head = (f"{'model':<11} {'solver':<9} {'l=p':>3} {'scenes':>6} {'time_s':>8} {'n':>2} {'relight_err':>11} "
+            f"{'rank':>5} {'cond':>9}")
     lines = [head, "-" * len(head)]
     for r in rows:
         rank = "-" if r.rank is None else str(r.rank)
         cond = "-" if r.condition is None else f"{r.condition:.2e}"
         lmax = "-" if r.model == "microfacet" else str(r.lmax)
-        lines.append(f"{r.model:<11} {r.solver:<9} {lmax:>3} {r.scenes:>6} {r.seconds:>8.3f} {r.relight_error:>11.3e} {rank:>5} {cond:>9}")
+        lines.append(f"{r.model:<11} {r.solver:<9} {lmax:>3} {r.scenes:>6} {r.seconds:>8.3f} {r.runs:>2} "
+                     f"{r.relight_error:>11.3e} {rank:>5} {cond:>9}")
     return "\n".join(lines)
 
 
@@ -269,6 +400,19 @@ def format_solver_comparison(rows: list[BenchRow]) -> str:
         best_new = min(errs.get("joint", math.inf), errs.get("tikhonov", math.inf))
         note = "paper better" if errs.get("paper", math.inf) < best_new * (1 - 1e-6) else ""
         lines.append(f"{model:<11} {scenes:>6} {lmax:>3} {cells}  {note}")
+    return "\n".join(lines)
+
+
+def format_phases(result: BenchResult) -> str:
+    """Where the benchmark's wall time went: its phases, then the fitter's stages summed over the table's fits."""
+    total = sum(result.phases.values())
+    lines = [f"  {name:<14} {s:>8.1f} s  {s / total:>4.0%}" for name, s in result.phases.items()]
+    lines.append(f"  {'total':<14} {total:>8.1f} s")
+    if result.fit_stages:
+        fit_total = sum(result.fit_stages.values())
+        parts = ", ".join(f"{k} {v:.1f} s ({v / fit_total:.0%})" for k, v in
+                          sorted(result.fit_stages.items(), key=lambda kv: -kv[1]) if v > 0)
+        lines.append(f"  inside the table's fits (fit_brdf stages, all runs): {parts}")
     return "\n".join(lines)
 
 
@@ -323,10 +467,30 @@ def plot_pareto(result: BenchResult, path: str | os.PathLike) -> Path:
 
 
 def rows_to_json(result: BenchResult) -> dict:
-    """JSON-able form of a result."""
+    """JSON-able form of a result (inverse: :func:`result_from_json`)."""
     return {
         "lighting": result.lighting,
         "headline": {"size": result.headline_size, "model": "full", "lmax": result.headline_lmax, "pmax": result.headline_lmax, "solver": "joint",
-                     "seconds_by_scenes": {str(k): v for k, v in result.headline.items()}},
-        "rows": [asdict(r) for r in result.rows],
+                     "seconds_by_scenes": {str(k): v for k, v in result.headline.items()},
+                     "times_by_scenes": {str(k): list(v) for k, v in result.headline_times.items()}},
+        "phases_seconds": result.phases,
+        "fit_stages_seconds": result.fit_stages,
+        "rows": [{**asdict(r), "times": list(r.times)} for r in result.rows],
     }
+
+
+def result_from_json(data: dict) -> BenchResult:
+    """The :class:`BenchResult` of a :func:`rows_to_json` dict (e.g. a ``bench.json`` read back)."""
+    head = data["headline"]
+    names = {f.name for f in fields(BenchRow)}
+    rows = [BenchRow(**{**{k: v for k, v in r.items() if k in names}, "times": tuple(r["times"])}) for r in data["rows"]]
+    return BenchResult(
+        rows,
+        {int(k): v for k, v in head["seconds_by_scenes"].items()},
+        head["size"],
+        head["lmax"],
+        data["lighting"],
+        {int(k): tuple(v) for k, v in head.get("times_by_scenes", {}).items()},
+        dict(data.get("phases_seconds", {})),
+        dict(data.get("fit_stages_seconds", {})),
+    )
