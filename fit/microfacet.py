@@ -405,11 +405,13 @@ def fit_microfacet(
     check = _Pixels(scenes, check_picks, coarse, base_envs, spec, lmax)
     no_series = [_Channel(data.series[:, :0, c], data.target[:, c]) for c in range(channels)]
     check_err = {"with_series": 0.0, "base_only": 0.0}
+    solutions = []  # per channel: variant -> (squared residual, amplitudes, series coefficients)
     for c in range(channels):
         cols, check_cols = data.columns(log_alphas[c], [c])[:, 0], check.columns(log_alphas[c], [c])[:, 0]
-        with_s, without = problems[c].solve(cols), no_series[c].solve(cols)
-        check_err["with_series"] += float(np.sum((check_cols @ with_s[1] + check.series[:, :, c] @ with_s[2] - check.target[:, c]) ** 2))
-        check_err["base_only"] += float(np.sum((check_cols @ without[1] - check.target[:, c]) ** 2))
+        sol = {"with_series": problems[c].solve(cols), "base_only": no_series[c].solve(cols)}
+        for variant, (_, a, x) in sol.items():
+            check_err[variant] += float(np.sum((check_cols @ a + check.series[:, : len(x), c] @ x - check.target[:, c]) ** 2))
+        solutions.append(sol)
     norm = max(float(np.sum(check.target**2)), 1e-300)
     check_err = {k: math.sqrt(v / norm) for k, v in check_err.items()}
     keep_series = spec is not None and len(check.target) > 0 and check_err["with_series"] < (1 - SERIES_MIN_GAIN) * check_err["base_only"]
@@ -417,7 +419,7 @@ def fit_microfacet(
     cost, lobe_share = 0.0, []
     for c in range(channels):
         cols = data.columns(log_alphas[c], [c])[:, 0]
-        r2, amps[c], x = (problems if keep_series else no_series)[c].solve(cols)
+        r2, amps[c], x = solutions[c]["with_series" if keep_series else "base_only"]
         coef[:, c] = x if keep_series else 0.0
         cost += r2
         lobe = cols[:, 2:] @ amps[c, 2:]
