@@ -1,9 +1,9 @@
-"""``brdfrig bench``: time-vs-error benchmark of the BRDF models and solvers (engine: :mod:`fit.bench`).
+"""``brdfrig bench``: time-vs-error benchmark of the BRDF models and solvers (engine: :mod:`brdfrig.evaluate.bench`).
 
 Lighting: the real lat-long probes of ``--probes`` (default ``../shared/data/probes``
 beside the source tree) when at least two are present (fit under the first,
 relight under the second), otherwise the simulated bench's procedural room
-(``rig.sim_bench``) and its held-out lighting.  The output says which.
+(``brdfrig.sim.bench``) and its held-out lighting.  The output says which.
 
 Ground-truth renders are cached in ``OUT/gt-cache`` (:class:`CachedGroundTruth`),
 keyed by every input and the renderer's source, so a second run skips them and
@@ -28,7 +28,7 @@ import json
 import sys
 from pathlib import Path
 
-DEFAULT_PROBES = Path(__file__).resolve().parents[2] / "shared" / "data" / "probes"
+DEFAULT_PROBES = Path(__file__).resolve().parents[4] / "shared" / "data" / "probes"
 MAP_ROWS = {"quick": 16, "full": 64}
 """Lat-long rows the maps are box-downsampled to (width = 2 rows): the ground truth's cost is linear in it."""
 
@@ -52,7 +52,7 @@ def register(subparsers) -> None:
 
 
 class CachedGroundTruth:
-    """:func:`fit.groundtruth.render_groundtruth` with renders cached as ``.npy`` files in a directory.
+    """:func:`brdfrig.fit.groundtruth.render_groundtruth` with renders cached as ``.npy`` files in a directory.
 
     The key is the sha256 of every input (BRDF class, kind and kernel parameters; normals; the
     environment's directions, radiance and solid angles; the view) and of the renderer's source
@@ -73,11 +73,11 @@ class CachedGroundTruth:
 
         import numpy as np
 
-        import fit.analytic
-        import fit.groundtruth
+        import brdfrig.fit.analytic
+        import brdfrig.fit.groundtruth
 
         if self._code is None:
-            self._code = b"".join(Path(m.__file__).read_bytes() for m in (fit.groundtruth, fit.analytic))
+            self._code = b"".join(Path(m.__file__).read_bytes() for m in (brdfrig.fit.groundtruth, brdfrig.fit.analytic))
         h = hashlib.sha256(self._code)
         h.update(f"{type(brdf).__qualname__}:{int(brdf.kind)}".encode())
         for a in (brdf.kernel_params(), normals, env.dirs, env.radiance, env.solid_angle, view):
@@ -91,8 +91,8 @@ class CachedGroundTruth:
 
         import numpy as np
 
-        from capture.store import atomic_write_bytes
-        from fit.groundtruth import render_groundtruth
+        from brdfrig.session.store import atomic_write_bytes
+        from brdfrig.fit.groundtruth import render_groundtruth
 
         path = self.directory / f"gt-{self.key(brdf, normals, env)}.npy"
         if path.is_file():
@@ -123,19 +123,9 @@ def _box_downsample(image, rows: int):
     return image.reshape(rows, f, 2 * rows, f, -1).mean(axis=(1, 3))
 
 
-def _environment(image):
-    import numpy as np
-
-    from fit.scene import Environment
-    from hdr.envmap import latlong_directions
-
-    dirs, omega = latlong_directions(*image.shape[:2])
-    return Environment(dirs.reshape(-1, 3), np.asarray(image, np.float64).reshape(-1, image.shape[2]), omega.ravel())
-
-
 def _procedural(rows: int):
     """(fit, test) environments from D's simulated bench: its procedural room and its held-out lighting."""
-    from rig.sim_bench import SimBench
+    from brdfrig.sim.bench import SimBench
 
     sim = SimBench(env_height=rows)
     return sim.environment(0.0), sim.heldout_environment()
@@ -144,10 +134,11 @@ def _procedural(rows: int):
 def run(args) -> int:
     import numpy as np
 
-    from capture.store import atomic_write_bytes
-    from fit.bench import (FAST_S, FULL, QUICK, format_phases, format_solver_comparison, format_table, plot_pareto,
+    from brdfrig.session.store import atomic_write_bytes
+    from brdfrig.evaluate.bench import (FAST_S, FULL, QUICK, format_phases, format_solver_comparison, format_table, plot_pareto,
                            rows_to_json, run_benchmark)
-    from hdr.sphere import sphere_pixels
+    from brdfrig.hdr.sphere import sphere_pixels
+    from brdfrig.lighting import environment_from_latlong
 
     config = QUICK if args.quick else FULL
     if args.budget is not None:
@@ -157,14 +148,14 @@ def run(args) -> int:
     rows = MAP_ROWS["quick" if args.quick else "full"]
     probes = sorted([*args.probes.glob("*.hdr"), *args.probes.glob("*.exr")]) if args.probes.is_dir() else []
     if len(probes) >= 2:
-        from hdr.exr import read_image
+        from brdfrig.hdr.exr import read_image
 
         maps = [_box_downsample(np.asarray(read_image(p), np.float64)[..., :3], rows) for p in probes[:2]]
-        fit_env, test_env = (_environment(m) for m in maps)
+        fit_env, test_env = (environment_from_latlong(m) for m in maps)
         lighting = f"real probes: fit {probes[0].name}, relight {probes[1].name} ({2 * rows}x{rows})"
     else:
         fit_env, test_env = _procedural(rows)
-        lighting = f"procedural maps of rig.sim_bench ({2 * rows}x{rows}; no real probes in {args.probes})"
+        lighting = f"procedural maps of brdfrig.sim.bench ({2 * rows}x{rows}; no real probes in {args.probes})"
 
     def sphere(size: int):
         px = sphere_pixels((size, size), (size / 2, size / 2, size / 2))

@@ -12,7 +12,7 @@ What it does, in order:
 3. runs the pipeline: merge, probe, fit each sample, BRDF files and figures;
 4. relights each fitted sample under a lighting the fit never saw and compares
    with the simulator's true BRDF rendered by brute force
-   (``fit.groundtruth.render_groundtruth``); targets: <= 2% relative RMS for
+   (``brdfrig.fit.groundtruth.render_groundtruth``); targets: <= 2% relative RMS for
    diffuse samples, <= 8% for glossy ones.  Exit status 1 if a target is missed.
 
 ``--quick`` shrinks the session (fewer scenes, smaller frame) for smoke tests;
@@ -45,7 +45,7 @@ def register(subparsers) -> None:
 
 def _quick(config):
     """A reduced copy of the demo session: half-size frame, coarser lighting, 4 scenes, lobe model at band limit 4."""
-    from capture.config import session_config_from_dict
+    from brdfrig.session.config import session_config_from_dict
 
     d = config.to_dict()
     scale = 0.5
@@ -75,10 +75,10 @@ def relighting_errors(config, samples) -> list[dict]:
     """
     import numpy as np
 
-    from capture.pipeline import relative_rms
-    from fit.groundtruth import render_groundtruth
-    from capture.session import sim_bench
-    from hdr.sphere import sphere_pixels
+    from brdfrig.fit.metrics import relative_rms
+    from brdfrig.fit.groundtruth import render_groundtruth
+    from brdfrig.session.runner import sim_bench
+    from brdfrig.hdr.sphere import sphere_pixels
 
     bench = sim_bench(config)
     env = bench.heldout_environment()
@@ -99,9 +99,9 @@ def relighting_errors(config, samples) -> list[dict]:
 def run(args) -> int:
     import tempfile
 
-    from capture.config import load_session_config
-    from capture.pipeline import run_pipeline
-    from capture.session import run_session
+    from brdfrig.session.config import load_session_config
+    from brdfrig.session.pipeline import run_pipeline
+    from brdfrig.session.runner import run_session
 
     t0 = time.monotonic()
 

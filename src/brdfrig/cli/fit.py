@@ -4,11 +4,11 @@ Each ``--scene ENV IMAGE`` pairs a lat-long environment map (MATH.md
 convention, EXR or Radiance .hdr, any resolution) with an HDR image of the
 sample sphere taken under it; ``--probe-scene PROBE IMAGE`` takes the lighting
 from a mirror-ball image instead (circle auto-detected, unwrapped by
-``hdr.probe``; ``--probe-circle`` overrides detection).  The sample sphere's circle is auto-detected in every IMAGE
-unless ``--circle cx,cy,r`` is given.  Pixels within ``hdr.sphere``'s default
+``brdfrig.hdr.probe``; ``--probe-circle`` overrides detection).  The sample sphere's circle is auto-detected in every IMAGE
+unless ``--circle cx,cy,r`` is given.  Pixels within ``brdfrig.hdr.sphere``'s default
 limb margin get weight 0, and the fitter ignores normals beyond 80 degrees from
-the view (``fit.fitter``).  Prints the identifiability report and the fit
-statistics; writes the versioned BRDF file (``fit.brdffile``) atomically.
+the view (``brdfrig.fit.fitter``).  Prints the identifiability report and the fit
+statistics; writes the versioned BRDF file (``brdfrig.fit.brdffile``) atomically.
 """
 
 from __future__ import annotations
@@ -53,53 +53,28 @@ def parse_circle(text: str, option: str = "--circle") -> tuple[float, float, flo
     return cx, cy, r
 
 
-def latlong_environment(path, lmax: int):
-    """Environment of a lat-long map file; ValueError if it cannot carry band ``lmax``.
-
-    A lat-long map of H rows samples latitude every 180/H degrees: bands up to
-    ``H/2 - 1`` are resolved (two samples per half-period of the highest band).
-    """
-    import numpy as np
-
-    from fit.scene import Environment
-    from hdr.envmap import latlong_directions
-    from hdr.exr import read_image
-
-    img = read_image(path)
-    h, w = img.shape[:2]
-    if lmax > h // 2 - 1:
-        raise ValueError(f"{path}: a {w}x{h} lat-long map supports bands up to {h // 2 - 1}, --lmax is {lmax}")
-    dirs, omega = latlong_directions(h, w)
-    return Environment(dirs.reshape(-1, 3), np.asarray(img, np.float64).reshape(h * w, -1), omega.reshape(-1))
-
-
 def _probe_environment(path, lmax: int, circle=None):
-    import numpy as np
-
-    from fit.scene import Environment
-    from hdr.detect import detect_sphere
-    from hdr.exr import read_image
-    from hdr.probe import unwrap_probe
+    from brdfrig.hdr.detect import detect_sphere
+    from brdfrig.hdr.exr import read_image
+    from brdfrig.lighting import environment_from_probe
 
     img = read_image(path)
     circle = detect_sphere(img) if circle is None else circle
     # The ball spans 360 degrees over its diameter 2r: r/2 pixels per band-limit half-period budget.
     if lmax > circle[2] / 4:
         raise ValueError(f"{path}: a mirror ball of radius {circle[2]:.0f} px supports bands up to {int(circle[2] / 4)}, --lmax is {lmax}")
-    s = unwrap_probe(img, circle)
-    v = s.valid
-    return Environment(s.dirs[v], np.asarray(s.radiance, np.float64)[v], s.solid_angle[v])
+    return environment_from_probe(img, circle, name=str(path))
 
 
 def _sample_scene(env, image_path, circle):
     """(Scene, circle used, image shape, (rows, cols) of the sphere pixels)."""
     import numpy as np
 
-    from fit.scene import Scene
-    from hdr.detect import detect_sphere
-    from hdr.exr import read_image
-    from hdr.probe import check_circle_in_frame
-    from hdr.sphere import sphere_pixels
+    from brdfrig.fit.scene import Scene
+    from brdfrig.hdr.detect import detect_sphere
+    from brdfrig.hdr.exr import read_image
+    from brdfrig.hdr.probe import check_circle_in_frame
+    from brdfrig.hdr.sphere import sphere_pixels
 
     img = read_image(image_path)
     if img.shape[2] != env.channels:
@@ -119,7 +94,7 @@ def write_figure(path, scenes, shapes, pixels, brdf) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from capture.figures import save_png
+    from brdfrig.session.figures import save_png
 
     fig, axes = plt.subplots(len(scenes), 3, figsize=(9, 3 * len(scenes)), squeeze=False)
     for k, (scene, shape, (rows, cols)) in enumerate(zip(scenes, shapes, pixels)):
@@ -148,8 +123,9 @@ def _channels(values) -> str:
 def run(args) -> int:
     from pathlib import Path
 
-    from fit.brdffile import save_brdf
-    from fit.fitter import fit_brdf
+    from brdfrig.fit.brdffile import save_brdf
+    from brdfrig.fit.fitter import fit_brdf
+    from brdfrig.lighting import read_latlong
 
     if not args.scene and not args.probe_scene:
         raise ValueError("give at least one --scene ENV IMAGE or --probe-scene PROBE IMAGE")
@@ -164,7 +140,7 @@ def run(args) -> int:
     for kind, pairs in (("latlong", args.scene), ("probe", args.probe_scene)):
         for env_path, image_path in pairs:
             if kind == "latlong":
-                env = latlong_environment(env_path, args.lmax)
+                env = read_latlong(env_path, args.lmax)
             else:
                 env = _probe_environment(env_path, args.lmax, probe_circle)
             scene, used, shape, px = _sample_scene(env, image_path, circle)

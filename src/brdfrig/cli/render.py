@@ -2,7 +2,7 @@
 
 The sphere is centred in an N x N image with radius N/2 pixels, seen
 orthographically from ``v = (0, 0, 1)`` (MATH.md); pixels outside it are 0.
-Written as a linear float32 EXR (``hdr.exr.write_exr``, atomic).
+Written as a linear float32 EXR (``brdfrig.hdr.exr.write_exr``, atomic).
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ def run(args) -> int:
 
     import numpy as np
 
-    from capture.cmd_fit import latlong_environment
-    from fit.brdffile import load_brdf
-    from hdr.exr import write_exr
-    from hdr.sphere import sphere_pixels
+    from brdfrig.fit.brdffile import load_brdf
+    from brdfrig.hdr.exr import write_exr
+    from brdfrig.hdr.sphere import sphere_pixels
+    from brdfrig.lighting import read_latlong
 
     if args.size < 1:
         raise ValueError(f"--size must be >= 1, got {args.size}")
@@ -40,7 +40,7 @@ def run(args) -> int:
     if not out.parent.is_dir():
         raise OSError(f"-o {out}: directory {out.parent} does not exist")
     brdf, _ = load_brdf(args.brdf)
-    env = latlong_environment(args.lighting, getattr(brdf, "lmax", 0))
+    env = read_latlong(args.lighting, getattr(brdf, "lmax", 0))
     if env.channels != brdf.channels and brdf.channels != 1:
         raise ValueError(f"{args.lighting}: lighting has {env.channels} channel(s), the BRDF {brdf.channels}")
     n = args.size

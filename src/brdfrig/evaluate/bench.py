@@ -1,14 +1,14 @@
 """Time-vs-error benchmark of every BRDF model and solver (the engine of ``brdfrig bench``).
 
 The material is a GGX sphere (alpha = 0.3 over a coloured Lambertian base,
-:data:`TRUTH`) rendered by the ground-truth quadrature (:mod:`fit.groundtruth`)
+:data:`TRUTH`) rendered by the ground-truth quadrature (:mod:`brdfrig.fit.groundtruth`)
 under a fit lighting, either once (one scene) or with the lighting turned
 about the vertical (+y) axis in 30 degree steps (twelve scenes).  The linear
 models ``diffuse``, ``lobe`` and ``full`` are fitted with each solver
 (``paper``, ``joint``, ``tikhonov``) at each band limit ``l = p = 1..12``,
 ``full+prior`` (always Tikhonov toward the microfacet prior) at each band
 limit, and ``microfacet`` (no band limit) once, all through
-:func:`fit.fitter.fit_brdf`; the fitted BRDF relights
+:func:`brdfrig.fit.fitter.fit_brdf`; the fitted BRDF relights
 the sphere under a DIFFERENT lighting and is compared with the ground truth
 there (relative RMS over the weighted pixels).
 
@@ -59,9 +59,10 @@ from typing import Callable, TypeVar
 
 import numpy as np
 
-from fit.analytic import GGX
-from fit.groundtruth import render_groundtruth
-from fit.scene import Environment, Scene
+from brdfrig.fit.analytic import GGX
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.scene import Environment, Scene
 
 __all__ = [
     "MODELS",
@@ -98,7 +99,7 @@ SphereGeometry = Callable[[int], tuple[np.ndarray, np.ndarray]]
 """``size -> (normals (N, 3), weights (N,))`` of the pixels of a size x size sphere image (MATH.md)."""
 
 GroundTruth = Callable[[object, np.ndarray, Environment], np.ndarray]
-"""``(brdf, normals (N, 3), env) -> (N, C)`` radiance, as :func:`fit.groundtruth.render_groundtruth`."""
+"""``(brdf, normals (N, 3), env) -> (N, C)`` radiance, as :func:`brdfrig.fit.groundtruth.render_groundtruth`."""
 
 T = TypeVar("T")
 
@@ -145,7 +146,7 @@ FULL = BenchConfig(sphere_size=64, lmax_values=tuple(range(1, 13)), scene_counts
 class BenchRow:
     """One benchmark measurement (``solver``/``lmax`` are ``"-"``/0 for the microfacet model).
 
-    ``seconds`` is the median of ``times`` (wall clock of each :func:`fit.fitter.fit_brdf` call).
+    ``seconds`` is the median of ``times`` (wall clock of each :func:`brdfrig.fit.fitter.fit_brdf` call).
     """
 
     model: str
@@ -171,7 +172,7 @@ class BenchResult:
     ``l = p = headline_lmax`` joint fit of ``headline_size`` x ``headline_size``
     three-channel images; ``headline_times`` to all its run times.  ``phases``
     maps a phase name to wall seconds (:func:`format_phases`), ``fit_stages``
-    a stage of :func:`fit.fitter.fit_brdf` to its seconds summed over every
+    a stage of :func:`brdfrig.fit.fitter.fit_brdf` to its seconds summed over every
     timed fit of the table.
     """
 
@@ -188,13 +189,7 @@ class BenchResult:
 def rotate_environment(env: Environment, angle_rad: float) -> Environment:
     """The environment turned by ``angle_rad`` about the vertical (+y) axis (right-handed)."""
     c, s = math.cos(angle_rad), math.sin(angle_rad)
-    rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    return Environment(np.asarray(env.dirs) @ rot.T, env.radiance, env.solid_angle)
-
-
-def _relative_rms(pred: np.ndarray, truth: np.ndarray, weights: np.ndarray) -> float:
-    w = weights[:, None]
-    return float(math.sqrt(np.sum(w * (pred - truth) ** 2) / max(np.sum(w * truth**2), 1e-300)))
+    return env.rotated(np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]))
 
 
 def _resample(image_values: np.ndarray, normals: np.ndarray, size: int, new_normals: np.ndarray) -> np.ndarray:
@@ -220,7 +215,7 @@ def _stats(report: dict, model: str) -> tuple[int | None, float | None]:
 
 
 def _fit(scenes: list[Scene], model: str, solver: str, lmax: int):
-    from fit.fitter import fit_brdf
+    from brdfrig.fit.fitter import fit_brdf
 
     if model == "microfacet":
         return fit_brdf(scenes, model=model, progress=False)
@@ -254,7 +249,7 @@ def time_runs(
 def plan_cases(config: BenchConfig) -> list[tuple[str, str, int, int]]:
     """``(model, solver, l = p, scenes)`` of every table row, in table order.
 
-    ``full+prior`` is always solved by Tikhonov toward the prior (:mod:`fit.fitter`): one row per band
+    ``full+prior`` is always solved by Tikhonov toward the prior (:mod:`brdfrig.fit.fitter`): one row per band
     limit; ``microfacet`` has no band limit (``"-"``, 0).
     """
     cases = [(m, s, l, n) for n in config.scene_counts for m in ("diffuse", "lobe", "full")
@@ -266,7 +261,7 @@ def plan_cases(config: BenchConfig) -> list[tuple[str, str, int, int]]:
 
 def _warm_up(sphere: SphereGeometry, env: Environment, groundtruth: GroundTruth) -> None:
     """Untimed ``auto`` (diffuse, lobe, microfacet) and ``full`` fits of a tiny sphere: numba kernels load, tables get built."""
-    from fit.fitter import fit_brdf
+    from brdfrig.fit.fitter import fit_brdf
 
     normals, weights = sphere(12)
     seen = weights > 0
@@ -298,14 +293,14 @@ def run_benchmark(
     fit_env, test_env : Environment
         The lighting of the fits and the different lighting of the relighting check (3 channels).
     sphere : callable
-        ``size -> (normals, weights)`` of a sphere image (``hdr.sphere`` via ``capture``).
+        ``size -> (normals, weights)`` of a sphere image (``brdfrig.hdr.sphere`` via ``capture``).
     config : BenchConfig
     lighting : str
         Description of the maps, carried into the result.
     progress : bool
         tqdm progress bars on stderr (the table's bar shows cases done / total and an ETA).
     groundtruth : callable
-        ``(brdf, normals, env) -> radiance`` (default :func:`fit.groundtruth.render_groundtruth`;
+        ``(brdf, normals, env) -> radiance`` (default :func:`brdfrig.fit.groundtruth.render_groundtruth`;
         ``capture`` passes a disk-cached one).  Called once per lighting.
     """
     from tqdm import tqdm
@@ -351,7 +346,7 @@ def run_benchmark(
             return res
 
         times, result = time_runs(fit, config.runs, extra_ok)
-        err = _relative_rms(result.brdf.predict(test_env, normals), truth_test, weights)
+        err = relative_rms(result.brdf.predict(test_env, normals), truth_test, weights)
         rank, cond = _stats(result.report, model)
         rows[i] = BenchRow(model, solver, lmax, count, statistics.median(times), err, rank, cond, tuple(times))
     bar.close()

@@ -5,19 +5,19 @@ Stages (each a function, so tests and the demo can run them separately):
 1. :func:`open_verified` - open the session and verify every raw file against
    the manifest; refuse (``ValueError`` naming the files) if any fails.
 2. :func:`merge_frames` - merge each (scene, table angle) bracket with
-   ``hdr.merge.merge_bracket``; results are cached in ``DIR/cache`` under the
+   ``brdfrig.hdr.merge.merge_bracket``; results are cached in ``DIR/cache`` under the
    sha256 of the raw files' hashes, exposure times and merge settings, so a
    refit reuses every merge whose inputs did not change.
 3. :func:`scene_lighting` - unwrap the probe of each frame with
-   ``hdr.probe.unwrap_probe`` and combine the table rotations of a scene with
-   ``hdr.probe.average_rotations`` (robust to blemishes) into an
-   ``fit.scene.Environment``.
+   ``brdfrig.hdr.probe.unwrap_probe`` and combine the table rotations of a scene with
+   ``brdfrig.hdr.probe.average_rotations`` (robust to blemishes) into an
+   ``brdfrig.fit.scene.Environment``.
 4. :func:`sample_scenes` - pixels, normals and limb weights of each sample
-   sphere from ``hdr.sphere.sphere_pixels``; pixels saturated or dark in every
+   sphere from ``brdfrig.hdr.sphere.sphere_pixels``; pixels saturated or dark in every
    exposure get weight 0.
-5. :func:`run_pipeline` - fit each sample with ``fit.fitter.fit_brdf``, save the
-   BRDF (``fit.brdffile.save_brdf``), a figure like the seed's figure 6
-   (``capture.figures``) and ``stats.json`` in a fresh ``results/fit-NNN``.
+5. :func:`run_pipeline` - fit each sample with ``brdfrig.fit.fitter.fit_brdf``, save the
+   BRDF (``brdfrig.fit.brdffile.save_brdf``), a figure like the seed's figure 6
+   (``brdfrig.session.figures``) and ``stats.json`` in a fresh ``results/fit-NNN``.
 """
 
 from __future__ import annotations
@@ -31,9 +31,10 @@ from typing import Callable
 
 import numpy as np
 
-from capture.config import FitPreset, SessionConfig, stored_session_config
-from capture.store import SessionStore, atomic_write_bytes
-from fit.brdffile import jsonable
+from brdfrig.session.config import FitPreset, SessionConfig, stored_session_config
+from brdfrig.session.store import SessionStore, atomic_write_bytes
+from brdfrig.fit.brdffile import jsonable
+from brdfrig.fit.metrics import relative_rms
 
 __all__ = [
     "MergedFrame",
@@ -126,22 +127,22 @@ def check_complete(store: SessionStore, config: SessionConfig) -> None:
         )
 
 
-#: Frame value at or above which a demosaiced sample counts as clipped (``hdr.merge``'s default threshold).
+#: Frame value at or above which a demosaiced sample counts as clipped (``brdfrig.hdr.merge``'s default threshold).
 CLIP_LEVEL = 0.95
 #: Pixels within this radius of a clipped pixel are weighted out by the merge: the support of the bilinear
-#: demosaicing of ``hdr.raw.decode_raw`` (``hdr.merge.merge_bracket``'s ``clip_radius``).
+#: demosaicing of ``brdfrig.hdr.raw.decode_raw`` (``brdfrig.hdr.merge.merge_bracket``'s ``clip_radius``).
 CLIP_RADIUS = 1
 
 
 def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float) -> MergedFrame:
-    """Merge one bracket of camera files (exposure times from their metadata) with ``hdr.merge.merge_bracket``.
+    """Merge one bracket of camera files (exposure times from their metadata) with ``brdfrig.hdr.merge.merge_bracket``.
 
     Pixels within ``CLIP_RADIUS`` of a clipped pixel are weighted out by the merge
     (demosaicing spreads clipped values into them); ``usable`` is False where
     every exposure was dark or saturated.
     """
-    from hdr.merge import FLAG_DARK, FLAG_SATURATED, merge_bracket
-    from hdr.raw import read_exposure, read_frame
+    from brdfrig.hdr.merge import FLAG_DARK, FLAG_SATURATED, merge_bracket
+    from brdfrig.hdr.raw import read_exposure, read_frame
 
     frames = [read_frame(p)[0] for p in paths]
     times = [read_exposure(p).time_s for p in paths]
@@ -156,7 +157,7 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
     """Merge every (scene, angle) bracket, reusing ``DIR/cache`` entries keyed by content hash."""
     from tqdm import tqdm
 
-    from hdr.exr import read_exr, write_exr
+    from brdfrig.hdr.exr import read_exr, write_exr
 
     cam = config.rig.camera
     settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "clip": CLIP_LEVEL,
@@ -185,8 +186,8 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
 
 def scene_lighting(config: SessionConfig, merged: dict[tuple[int, float], MergedFrame], scene: int):
     """The ``Environment`` of one scene from its probe frames (table rotations averaged robustly)."""
-    from fit.scene import Environment
-    from hdr.probe import average_rotations, unwrap_probe
+    from brdfrig.hdr.probe import average_rotations
+    from brdfrig.lighting import environment_from_probe
 
     probe = config.plan.probe
     if probe.circle is None:
@@ -200,21 +201,15 @@ def scene_lighting(config: SessionConfig, merged: dict[tuple[int, float], Merged
         image, circle = average_rotations([f.radiance for f in frames], [probe.circle] * len(frames))
     else:
         image, circle = frames[0].radiance, probe.circle
-    env = unwrap_probe(image, circle, mask=unusable, **kwargs)
-    valid = env.valid & np.all(np.isfinite(env.radiance), axis=1) & (env.solid_angle > 0)
-    return Environment(
-        np.asarray(env.dirs[valid], np.float64),
-        np.asarray(env.radiance[valid], np.float64),
-        np.asarray(env.solid_angle[valid], np.float64),
-    )
+    return environment_from_probe(image, circle, mask=unusable, name=f"scene {scene} probe", **kwargs)
 
 
 def sample_scenes(config: SessionConfig, merged: dict[tuple[int, float], MergedFrame], envs: list,
                   ) -> dict[str, tuple[list, object]]:
-    """Per sample name: one ``fit.scene.Scene`` per scene (frames of a scene's table angles averaged),
-    and the ``hdr.sphere.SpherePixels`` (rows, cols) of its pixels."""
-    from fit.scene import Scene
-    from hdr.sphere import sphere_pixels
+    """Per sample name: one ``brdfrig.fit.scene.Scene`` per scene (frames of a scene's table angles averaged),
+    and the ``brdfrig.hdr.sphere.SpherePixels`` (rows, cols) of its pixels."""
+    from brdfrig.fit.scene import Scene
+    from brdfrig.hdr.sphere import sphere_pixels
 
     out: dict[str, tuple[list, object]] = {}
     for sample in config.plan.samples:
@@ -233,12 +228,6 @@ def sample_scenes(config: SessionConfig, merged: dict[tuple[int, float], MergedF
     return out
 
 
-def relative_rms(pred: np.ndarray, truth: np.ndarray, weights: np.ndarray | None = None) -> float:
-    """Relative RMS error ``sqrt(sum w (pred - truth)^2 / sum w truth^2)`` over pixels and channels."""
-    w = np.ones(len(truth)) if weights is None else weights
-    return float(np.sqrt(np.sum(w[:, None] * (pred - truth) ** 2) / np.sum(w[:, None] * truth**2)))
-
-
 def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progress: bool = True,
                  echo: Callable[[str], None] = print, figures: bool = True) -> PipelineResult:
     """Verify, merge (cached), build the scenes, fit every sample, and write BRDF files, figures and stats.
@@ -247,9 +236,9 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     """
     from tqdm import tqdm
 
-    from capture.figures import fit_figure
-    from fit.brdffile import save_brdf
-    from fit.fitter import fit_brdf
+    from brdfrig.session.figures import fit_figure
+    from brdfrig.fit.brdffile import save_brdf
+    from brdfrig.fit.fitter import fit_brdf
 
     store, config = open_verified(session_dir)
     check_complete(store, config)

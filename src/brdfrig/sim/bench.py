@@ -8,7 +8,7 @@ can score the whole pipeline:
   ``../shared/docs/MATH.md`` (+y up, camera along +z);
 * one orthographic camera frame (default 640 x 240 pixels, ``scale`` resizes
   it): a chrome probe ball on the left (sub-unity albedo, dark blemishes fixed
-  on its surface), sample spheres with analytic BRDFs (:mod:`fit.analytic`) to
+  on its surface), sample spheres with analytic BRDFs (:mod:`brdfrig.fit.analytic`) to
   its right, on a black backdrop;
 * a turntable rotating about the vertical +y axis.  ``carries="rig"``: the
   table carries camera, probe and samples, so the room turns relative to the
@@ -17,7 +17,7 @@ can score the whole pipeline:
   vertical spindle (positions in the frame fixed); the lighting stays, the
   probe's blemishes move (and isotropic samples look the same).
 
-Samples are rendered by brute-force quadrature (:func:`fit.groundtruth.render_groundtruth`)
+Samples are rendered by brute-force quadrature (:func:`brdfrig.fit.groundtruth.render_groundtruth`)
 over a lat-long environment of ``env_height`` x ``2 env_height`` pixels; the probe
 by looking the environment up along the mirror direction in a finer map.
 Rendered frames are cached per table angle.
@@ -30,11 +30,12 @@ from functools import cached_property
 
 import numpy as np
 
-from fit.analytic import GGX, AnalyticBRDF, Lambertian
-from fit.groundtruth import render_groundtruth
-from fit.scene import Environment
-from hdr.envmap import latlong_directions, sample_latlong
-from hdr.sphere import sphere_pixels
+from brdfrig.fit.analytic import GGX, AnalyticBRDF, Lambertian
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.scene import Environment
+from brdfrig.hdr.envmap import latlong_directions, sample_latlong
+from brdfrig.hdr.sphere import sphere_pixels
+from brdfrig.lighting import environment_from_latlong
 
 __all__ = ["procedural_environment", "rotation_y", "SimBench", "SAMPLE_NAMES", "BASE_FRAME", "BASE_CIRCLES"]
 
@@ -112,14 +113,14 @@ class SimBench:
         the sphere's image-plane offsets and interpolated (cubic) to every pixel:
         10-14x faster than quadrature at every pixel of a radius-90 sphere, for a
         0.13-0.18% RMS difference, far below the sensor noise
-        (``python -m rig.bench_render``, ``tests/test_sim_bench.py``).
+        (``python -m benchmarks.bench_render``, ``tests/test_sim_bench.py``).
 
     Attributes
     ----------
     frame_shape : (H, W)
     probe_circle : (cx, cy, r)
     sample_circles : dict name -> (cx, cy, r)
-    samples : dict name -> fit.analytic BRDF ("matte": Lambertian, "glossy": GGX alpha 0.3)
+    samples : dict name -> brdfrig.fit.analytic BRDF ("matte": Lambertian, "glossy": GGX alpha 0.3)
     """
 
     def __init__(self, *, carries: str = "rig", scale: float = 1.0, seed: int = 0, env_height: int = 64,
@@ -180,16 +181,13 @@ class SimBench:
 
     def environment(self, table_angle_deg: float = 0.0) -> Environment:
         """The lighting in the camera frame at this table angle (``env_height`` lat-long samples)."""
-        dirs, solid = latlong_directions(self.env_height, 2 * self.env_height)
-        radiance = self.environment_map(table_angle_deg)
-        return Environment(dirs.reshape(-1, 3), radiance.reshape(-1, 3), solid.reshape(-1))
+        return environment_from_latlong(self.environment_map(table_angle_deg))
 
     def heldout_environment(self) -> Environment:
         """A lighting no capture sees (room turned 137 deg and tilted, colours reversed), for scoring relighting."""
-        dirs, solid = latlong_directions(self.env_height, 2 * self.env_height)
+        dirs, _ = latlong_directions(self.env_height, 2 * self.env_height)
         tilt = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(0.35), -math.sin(0.35)], [0.0, math.sin(0.35), math.cos(0.35)]])
-        radiance = procedural_environment(dirs @ (tilt @ rotation_y(137.0)).T)[..., ::-1]
-        return Environment(dirs.reshape(-1, 3), np.ascontiguousarray(radiance.reshape(-1, 3)), solid.reshape(-1))
+        return environment_from_latlong(procedural_environment(dirs @ (tilt @ rotation_y(137.0)).T)[..., ::-1])
 
     # -- rendering ------------------------------------------------------------------------------
     @cached_property
@@ -258,7 +256,7 @@ class SimBench:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m rig.sim_bench [--out bench.png]``: a picture of the bench at a few table angles."""
+    """``python -m brdfrig.sim.bench [--out bench.png]``: a picture of the bench at a few table angles."""
     import argparse
     import sys
 
@@ -267,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    parser = argparse.ArgumentParser(prog="python -m rig.sim_bench", description=main.__doc__)
+    parser = argparse.ArgumentParser(prog="python -m brdfrig.sim.bench", description=main.__doc__)
     parser.add_argument("--out", default="sim_bench.png", help="PNG file to write")
     parser.add_argument("--carries", choices=("rig", "samples"), default="rig")
     parser.add_argument("--angles", type=float, nargs="+", default=[0.0, 90.0, 180.0])

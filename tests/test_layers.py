@@ -1,0 +1,82 @@
+"""The package's import graph obeys its layers (an ast scan of every module, deferred imports included).
+
+Layers, bottom up: ``errors``/``_atomic`` (no brdfrig imports); ``rig`` (devices), ``hdr`` (images)
+and ``fit`` (numbers), which never import each other; ``lighting`` (the one hdr<->fit bridge);
+``session``; ``sim`` and ``evaluate``; ``devices``; ``cli`` on top, imported by nothing but
+``__main__``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "brdfrig"
+
+BASE = {"errors", "_atomic"}
+ALLOWED: dict[str, set[str]] = {
+    "errors": set(),
+    "_atomic": {"errors"},
+    "rig": BASE | {"rig"},
+    "hdr": BASE | {"hdr"},
+    "fit": BASE | {"fit"},
+    "lighting": BASE | {"hdr", "fit"},
+    "session": BASE | {"rig", "hdr", "fit", "lighting", "session"},
+    "sim": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim"},
+    "evaluate": BASE | {"hdr", "fit", "lighting", "session", "sim", "evaluate"},
+    "devices": BASE | {"rig", "sim", "session", "devices"},
+    "cli": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim", "evaluate", "devices", "cli"},
+    "__main__": {"cli"},
+    "__init__": set(),
+}
+
+
+def _layer(path: Path) -> str:
+    rel = path.relative_to(PACKAGE)
+    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
+
+
+def _imported_layers(path: Path):
+    """(line, layer) of every brdfrig import in a module, deferred (function-level) imports included."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module + "." + a.name for a in node.names] if node.module == "brdfrig" else [node.module]
+        elif isinstance(node, ast.ImportFrom):  # relative import: resolve against the module's package
+            raise AssertionError(f"{path}:{node.lineno}: relative import; the project uses absolute imports")
+        else:
+            continue
+        for name in names:
+            parts = name.split(".")
+            if parts[0] == "brdfrig" and len(parts) > 1:
+                yield node.lineno, parts[1]
+
+
+def _modules():
+    return sorted(PACKAGE.rglob("*.py"))
+
+
+def test_the_scan_sees_the_package():
+    layers = {_layer(p) for p in _modules()}
+    assert {"rig", "hdr", "fit", "lighting", "session", "sim", "cli"} <= layers
+    # every module's layer has a rule (a new top-level module must be placed deliberately)
+    assert layers <= set(ALLOWED), sorted(layers - set(ALLOWED))
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_respect_layers(path):
+    layer = _layer(path)
+    bad = [f"line {line}: {layer} imports {target}" for line, target in _imported_layers(path)
+           if target not in ALLOWED[layer] and target != "__version__"]
+    assert not bad, f"{path.relative_to(PACKAGE)}: " + "; ".join(bad)
+
+
+def test_a_forbidden_edge_is_caught(tmp_path):
+    """The scan itself: a deferred fit import inside hdr is reported."""
+    fake = tmp_path / "mod.py"
+    fake.write_text("def f():\n    from brdfrig.fit.sh import sh_eval\n    import brdfrig.rig.turntable\n")
+    assert [t for _, t in _imported_layers(fake)] == ["fit", "rig"]
