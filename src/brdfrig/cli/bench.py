@@ -28,6 +28,9 @@ import json
 import sys
 from pathlib import Path
 
+from brdfrig.evaluate.cache import CachedGroundTruth
+from brdfrig.evaluate.probes import box_downsample as _box_downsample
+
 DEFAULT_PROBES = Path(__file__).resolve().parents[4] / "shared" / "data" / "probes"
 MAP_ROWS = {"quick": 16, "full": 64}
 """Lat-long rows the maps are box-downsampled to (width = 2 rows): the ground truth's cost is linear in it."""
@@ -49,78 +52,6 @@ def register(subparsers) -> None:
     p.add_argument("--probes", type=Path, default=DEFAULT_PROBES, help="directory of lat-long .hdr/.exr probes (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
-
-
-class CachedGroundTruth:
-    """:func:`brdfrig.fit.groundtruth.render_groundtruth` with renders cached as ``.npy`` files in a directory.
-
-    The key is the sha256 of every input (BRDF class, kind and kernel parameters; normals; the
-    environment's directions, radiance and solid angles; the view) and of the renderer's source
-    (``fit/groundtruth.py``, ``fit/analytic.py``): a changed input or renderer gives a new key, so a stale
-    render is never reused.  A cached file of the wrong shape or with non-finite values is rendered again.
-    ``hits``/``misses`` count cache use.
-    """
-
-    def __init__(self, directory: Path):
-        self.directory = Path(directory)
-        self.hits = 0
-        self.misses = 0
-        self._code = None
-
-    def key(self, brdf, normals, env, view=(0.0, 0.0, 1.0)) -> str:
-        """Hex sha256 of the render's inputs and the renderer's source."""
-        import hashlib
-
-        import numpy as np
-
-        import brdfrig.fit.analytic
-        import brdfrig.fit.groundtruth
-
-        if self._code is None:
-            self._code = b"".join(Path(m.__file__).read_bytes() for m in (brdfrig.fit.groundtruth, brdfrig.fit.analytic))
-        h = hashlib.sha256(self._code)
-        h.update(f"{type(brdf).__qualname__}:{int(brdf.kind)}".encode())
-        for a in (brdf.kernel_params(), normals, env.dirs, env.radiance, env.solid_angle, view):
-            a = np.ascontiguousarray(a, dtype=np.float64)
-            h.update(repr(a.shape).encode())
-            h.update(a.tobytes())
-        return h.hexdigest()
-
-    def __call__(self, brdf, normals, env):
-        import io
-
-        import numpy as np
-
-        from brdfrig.session.store import atomic_write_bytes
-        from brdfrig.fit.groundtruth import render_groundtruth
-
-        path = self.directory / f"gt-{self.key(brdf, normals, env)}.npy"
-        if path.is_file():
-            try:
-                cached = np.load(path)
-            except (OSError, ValueError):
-                cached = None
-            if cached is not None and cached.shape == (len(normals), env.channels) and np.all(np.isfinite(cached)):
-                self.hits += 1
-                return cached
-        self.misses += 1
-        image = render_groundtruth(brdf, normals, env)
-        buf = io.BytesIO()
-        np.save(buf, image)
-        self.directory.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(path, buf.getvalue())
-        return image
-
-
-def _box_downsample(image, rows: int):
-    """Average blocks of a lat-long image down to ``rows x 2 rows`` (rows must divide the height)."""
-    import numpy as np
-
-    h, w = image.shape[:2]
-    if h % rows or w != 2 * h:
-        raise ValueError(f"lat-long map of {w}x{h} cannot be box-downsampled to {2 * rows}x{rows} (need width = 2 height, height divisible by {rows})")
-    f = h // rows
-    return image.reshape(rows, f, 2 * rows, f, -1).mean(axis=(1, 3))
 
 
 def _procedural(rows: int):
