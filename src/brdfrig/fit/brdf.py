@@ -1,7 +1,7 @@
 """The contract every BRDF model of brdfrig implements, and the registry that reads them back.
 
 A fitted (or analytic) BRDF is any object with the attributes and methods of
-:class:`FittedBRDF`.  Conventions (``../shared/docs/MATH.md``): isotropic BRDF
+:class:`FittedBRDF`.  Conventions (``docs/MATH.md``): isotropic BRDF
 ``rho`` in 1/sr (no cosine factor), angles in radians, colour channels last,
 orthographic view ``v = (0, 0, 1)``.
 
@@ -18,7 +18,7 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from fit.scene import Environment
+from brdfrig.fit.scene import Environment
 
 __all__ = ["FittedBRDF", "register_model", "brdf_from_dict"]
 
@@ -59,14 +59,14 @@ _REGISTRY: dict[str, Callable[[dict], FittedBRDF]] = {}
 
 # Modules that register the built-in models when imported (lazy: keeps imports light).
 _PROVIDERS: dict[str, str] = {
-    "diffuse": "fit.models",
-    "lobe": "fit.models",
-    "full": "fit.models",
-    "microfacet": "fit.microfacet",
-    "lambertian": "fit.analytic",
-    "oren_nayar": "fit.analytic",
-    "blinn_phong": "fit.analytic",
-    "ggx": "fit.analytic",
+    "diffuse": "brdfrig.fit.models",
+    "lobe": "brdfrig.fit.models",
+    "full": "brdfrig.fit.models",
+    "microfacet": "brdfrig.fit.microfacet",
+    "lambertian": "brdfrig.fit.analytic",
+    "oren_nayar": "brdfrig.fit.analytic",
+    "blinn_phong": "brdfrig.fit.analytic",
+    "ggx": "brdfrig.fit.analytic",
 }
 
 

@@ -11,20 +11,19 @@ Layout (``format`` and ``version`` are checked on reading)::
       "provenance": {...}       # writer, time, inputs
     }
 
-Written atomically (temporary name in the same directory, then ``os.replace``).
+Written atomically by :mod:`brdfrig._atomic`.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from fit.brdf import FittedBRDF, brdf_from_dict
+from brdfrig._atomic import write_text
+from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf"]
 
@@ -32,7 +31,7 @@ FORMAT_NAME = "brdfrig-brdf"
 FORMAT_VERSION = 1
 
 CONVENTIONS = {
-    "document": "MATH.md (brdfrig)",
+    "document": "docs/MATH.md of the brdfrig source tree (conventions and pitfalls)",
     "world_frame": "right-handed; orthographic camera on +z, view direction v = (0, 0, 1)",
     "local_frame": "R_n = Rz(phi_N) Ry(theta_N); w_o' = (-sin theta_N, 0, cos theta_N)",
     "sh_basis": "real orthonormal, no Condon-Shortley phase, index l*l + l + m; m > 0 ~ cos(m phi)",
@@ -60,8 +59,9 @@ def jsonable(obj):
     return str(obj)  # paths and other objects in a report or provenance: their text
 
 
-def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: dict | None = None) -> Path:
-    """Write ``brdf`` and its fit ``report`` to ``path`` (JSON), atomically.
+def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: dict | None = None, *,
+              overwrite: bool = True) -> Path:
+    """Write ``brdf`` and its fit ``report`` to ``path`` (JSON), atomically (``overwrite=False``: never replace a file).
 
     Returns
     -------
@@ -76,22 +76,11 @@ def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: di
         "conventions": CONVENTIONS,
         "report": jsonable(report or {}),
         "provenance": jsonable(
-            {"writer": "brdfrig fit.brdffile", "written_utc": _dt.datetime.now(_dt.timezone.utc).isoformat()}
+            {"writer": "brdfrig.fit.brdffile", "written_utc": _dt.datetime.now(_dt.timezone.utc).isoformat()}
             | (provenance or {})
         ),
     }
-    text = json.dumps(doc, indent=1, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if str(path.parent) else ".")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text(path, json.dumps(doc, indent=1, allow_nan=False), overwrite=overwrite)
 
 
 def load_brdf(path) -> tuple[FittedBRDF, dict]:

@@ -1,6 +1,6 @@
 """``fit_brdf``: fit a BRDF to sphere images under measured lighting, choosing a model the data determine.
 
-Pipeline (``../shared/docs/MATH.md``):
+Pipeline (``docs/MATH.md``):
 
 1. Pixels: only finite pixels with positive weight whose normal lies within
    :data:`DEFAULT_MAX_THETA_DEG` of the view direction are used (the default
@@ -8,16 +8,16 @@ Pipeline (``../shared/docs/MATH.md``):
    background in real and rendered images, and the design is badly
    conditioned); every exclusion is counted in the report.
 2. Lighting: each scene's environment is projected onto SH once
-   (``fit.shproject``); the rotated lighting ``L'(n)`` is computed once per
+   (``brdfrig.fit.shproject``); the rotated lighting ``L'(n)`` is computed once per
    pixel block for all colour channels, and every solver works from the same
-   streamed QR factor (:mod:`fit.solvers`).
-3. Identifiability from the lighting alone (:mod:`fit.identifiability`):
+   streamed QR factor (:mod:`brdfrig.fit.solvers`).
+3. Identifiability from the lighting alone (:mod:`brdfrig.fit.identifiability`):
    bands without lighting energy are dropped from every model (reported), and
    ``full`` is only a candidate of ``auto`` at band limits the scenes separate.
 4. Stopping rule (pixels beyond what changes the answer are skipped): pixels
    of all scenes are visited in one random order, in blocks of
    :data:`BLOCK_ROWS`; once at least ``3 n`` rows are in, a cheap, slightly
-   damped least-squares solution (:func:`fit.solvers.probe_solution`, a Cholesky
+   damped least-squares solution (:func:`brdfrig.fit.solvers.probe_solution`, a Cholesky
    solve of the damped normal equations from the QR factor instead of an SVD) is recomputed
    after every block and its predicted radiance on the held-out pixels
    compared with the previous one; the stream stops when that relative
@@ -30,14 +30,14 @@ Pipeline (``../shared/docs/MATH.md``):
    solver and the reported rank and condition number see the same system (report: ``reduced_stream``);
    the stopping rule's probe is solved in the reduced coordinates.
 
-   Speed (``python -m fit.bench_fit_speed``; 512x512 three-channel spheres, ``full`` at l = p = 8,
+   Speed (``python -m benchmarks.bench_fit_speed``; 512x512 three-channel spheres, ``full`` at l = p = 8,
    joint solver, 2-core machine shared with other jobs): one scene folds 10 blocks (20480 rows), twelve
    scenes 39 blocks (79872 rows), and the time goes to the QR updates (LAPACK ``tpqrt``, each channel on
    its own thread), design assembly (numba kernel over the rotated lighting), the probes and the fixed
    stages; ``report["stage_seconds"]`` (:data:`STAGES`) has the breakdown of every fit.  Measured there:
    sphericart's OpenMP threads, woken for every SH evaluation, made each call on a block's pixels of
    one scene take ~10 ms (4.6 s of a twelve-scene fit): the design evaluates the SH once per block
-   (:func:`fit.system.design_rows`).  Limiting those threads instead (threadpoolctl) corrupted memory
+   (:func:`brdfrig.fit.system.design_rows`).  Limiting those threads instead (threadpoolctl) corrupted memory
    once numba's own OpenMP runtime (microfacet fit) ran in the same process.  QR-updating in a
    worker while assembling the next block saved nothing (GIL waits) and was dropped.
 
@@ -45,7 +45,7 @@ Pipeline (``../shared/docs/MATH.md``):
    :data:`HELDOUT_MAX` of them) never enter a fit; each candidate's weighted
    relative RMS error on them is reported.  ``auto`` keeps only candidates the
    identifiability analysis calls determined *and* whose pixel system reached
-   full rank (and, when any is, physically plausible: :func:`fit.models.plausibility`), and picks the richest (order :data:`RICHNESS`) whose held-out
+   full rank (and, when any is, physically plausible: :func:`brdfrig.fit.models.plausibility`), and picks the richest (order :data:`RICHNESS`) whose held-out
    error is within :data:`SELECT_RTOL` of the best.
 """
 
@@ -61,14 +61,14 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from fit.brdf import FittedBRDF
-from fit.identifiability import THETA_MAX_DEG, analyse_lighting
-from fit.microfacet import fit_microfacet
-from fit.models import make_linear_brdf, plausibility, project_to_full
-from fit.scene import Scene
-from fit.shproject import project_environment
-from fit.solvers import SOLVERS, StreamedQR, numerical_rank, probe_solution, solve
-from fit.system import ModelSpec, design_rows
+from brdfrig.fit.brdf import FittedBRDF
+from brdfrig.fit.identifiability import THETA_MAX_DEG, analyse_lighting
+from brdfrig.fit.microfacet import fit_microfacet
+from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
+from brdfrig.fit.scene import Scene
+from brdfrig.fit.shproject import project_environment
+from brdfrig.fit.solvers import SOLVERS, StreamedQR, numerical_rank, probe_solution, solve
+from brdfrig.fit.system import ModelSpec, design_rows
 
 __all__ = ["FitResult", "fit_brdf", "MODELS", "RICHNESS", "DEFAULT_MAX_THETA_DEG", "STOP_TOL"]
 
@@ -101,7 +101,7 @@ COND_WARN = 1e6
 """Condition number (column-equilibrated) above which the report warns that weakly determined
 directions may relight badly under other lighting.  For the ``tikhonov`` solver (and ``full+prior``)
 the condition number judged is that of the regularised system solved (report key
-``condition_number_regularised``, :attr:`fit.solvers.Solution.cond_regularised`): a fit the prior
+``condition_number_regularised``, :attr:`brdfrig.fit.solvers.Solution.cond_regularised`): a fit the prior
 keeps well determined does not warn."""
 
 
@@ -227,7 +227,7 @@ def _lighting(scenes: list[Scene], lmax: int) -> list[np.ndarray]:
 
 def _design(spec: ModelSpec, coeffs: list[np.ndarray], pool: _Pool, idx: np.ndarray) -> np.ndarray:
     """Design rows (len(idx), n, C) of pixels ``idx`` (sorted: the pool is in scene order, so each scene is one run),
-    laid out by :func:`fit.system.design_rows` (each channel's rows one Fortran-ordered matrix)."""
+    laid out by :func:`brdfrig.fit.system.design_rows` (each channel's rows one Fortran-ordered matrix)."""
     return design_rows(spec, coeffs, pool.scene[idx], pool.normals[idx])
 
 
@@ -245,7 +245,7 @@ REDUCE_RTOL = 1e-13
 """Singular values of the first block's column-equilibrated factor above this fraction of the largest span
 the basis a rank-deficient model is streamed in.  One scene, ``full`` at l = p = 8 (285 unknowns): 146 of
 them are above 1e-11, the rest below 2e-15 (rounding), in every block; the solvers' own threshold
-(:data:`fit.solvers.RANK_RTOL` = 1e-9) and Tikhonov damping act far above it."""
+(:data:`brdfrig.fit.solvers.RANK_RTOL` = 1e-9) and Tikhonov damping act far above it."""
 REDUCE_MAX_FRACTION = 0.75
 """Reduce only when that rank is at most this fraction of the unknowns (QR cost ~ rows x columns^2:
 above it the extra products of the reduction eat the saving)."""
@@ -260,7 +260,7 @@ class _Stream:
     """A model's streamed system: QR factor, held-out design, and how much of the pixel stream it took.
 
     ``reduced_columns``: None, or the number of columns r < n of the basis the design was streamed in
-    (the factor ``qr`` is then :meth:`fit.solvers.StreamedQR.lifted` back to the n unknowns).
+    (the factor ``qr`` is then :meth:`brdfrig.fit.solvers.StreamedQR.lifted` back to the n unknowns).
     """
 
     spec: ModelSpec

@@ -1,6 +1,6 @@
 """What the lighting of a capture can determine, computed before any image is read.
 
-``../shared/docs/MATH.md`` pitfall 1: on a ring of constant ``theta_N`` the image
+``docs/MATH.md`` pitfall 1: on a ring of constant ``theta_N`` the image
 of a sphere is a Fourier series in ``phi_N`` of orders ``|j| <= L``, and the
 order-``j`` part is ``sum_{l >= j} (L_{l,j} cos(j phi) + L_{l,-j} sin(j phi)) g_{l,j}(theta)``
 with ``g_{l,j}(theta) = sum_k d^l_{jk}(theta) f_{l,k}(theta)`` (``d^l`` the real
@@ -15,10 +15,10 @@ lighting differs.  Pitfall 2: a band with no lighting energy multiplies
 nothing; it is reported unobservable and left out of every model.
 
 Independently, the numerical rank of each linear model's design matrix
-(:mod:`fit.system`) is computed from the lighting alone on a synthetic grid of
+(:mod:`brdfrig.fit.system`) is computed from the lighting alone on a synthetic grid of
 sphere normals (rings in ``theta_N`` x equispaced ``phi_N``, dense enough for
 the trigonometric degree of every column), per colour channel, with the same
-column equilibration and threshold as :mod:`fit.solvers`.  The rank equals that
+column equilibration and threshold as :mod:`brdfrig.fit.solvers`.  The rank equals that
 of the system assembled from an image's pixels (tested).
 """
 
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fit.sh import sh_index
-from fit.solvers import numerical_rank
-from fit.system import LINEAR_MODELS, ModelSpec, design_block
+from brdfrig.fit.sh import sh_index
+from brdfrig.fit.solvers import numerical_rank
+from brdfrig.fit.system import LINEAR_MODELS, ModelSpec, design_block
 
 __all__ = ["ENERGY_RTOL", "THETA_MAX_DEG", "Identifiability", "analyse_lighting", "scenes_needed"]
 

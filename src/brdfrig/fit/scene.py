@@ -1,6 +1,6 @@
 """Plain-array inputs of the fitter: an environment (lighting) and a scene (lighting + one sphere image).
 
-Conventions (``../shared/docs/MATH.md``): world frame right-handed, orthographic
+Conventions (``docs/MATH.md``): world frame right-handed, orthographic
 camera along +z, view direction ``v = (0, 0, 1)``; radiance linear, float, one
 column per colour channel.  ``fit`` never reads files: ``capture`` builds these
 from ``hdr`` outputs.
@@ -11,6 +11,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class LatLongMap:
+    """A lat-long radiance map kept whole, so that quadrature can subdivide its cells.
+
+    Attributes
+    ----------
+    image : (H, W, C) float64
+        Radiance per cell, constant over the cell, in the lat-long convention of
+        MATH.md (OpenEXR ``LatLongMap``, cell centres at ``(col + 0.5) / W``,
+        ``(row + 0.5) / H``; row 0 is +y).
+    rotation : (3, 3) float64
+        World direction of a map direction ``d``: ``rotation @ d`` (identity when the
+        map frame is the world frame; a turned rig gives another rotation).
+    """
+
+    image: np.ndarray
+    rotation: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -25,15 +44,27 @@ class Environment:
         Radiance arriving from each direction, linear.
     solid_angle : (M,) float64
         Solid angle of each sample in steradians (0 where unseen).
+    latlong : LatLongMap or None
+        The map these samples are the cell centres of (row-major, ``dirs`` =
+        ``rotation @`` cell-centre directions), when they came from one; None for
+        other sample sets.  Lets renderers integrate sharp lobes over cells
+        instead of sampling cell centres (MATH.md pitfall 9).
     """
 
     dirs: np.ndarray
     radiance: np.ndarray
     solid_angle: np.ndarray
+    latlong: LatLongMap | None = None
 
     @property
     def channels(self) -> int:
         return self.radiance.shape[1]
+
+    def rotated(self, rotation: np.ndarray) -> "Environment":
+        """The same lighting turned by the (3, 3) rotation matrix ``rotation`` (directions ``rotation @ d``)."""
+        rot = np.asarray(rotation, dtype=np.float64)
+        latlong = None if self.latlong is None else LatLongMap(self.latlong.image, rot @ self.latlong.rotation)
+        return Environment(np.asarray(self.dirs) @ rot.T, self.radiance, self.solid_angle, latlong)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Real orthonormal spherical harmonics, evaluated for many directions at once.
 
-Convention (public contract, ``../shared/docs/MATH.md``), the one of sphericart:
+Convention (public contract, ``docs/MATH.md``), the one of sphericart:
 
 - column ``sh_index(l, m) = l*l + l + m`` for ``0 <= l <= lmax``, ``-l <= m <= l``;
 - orthonormal on the unit sphere: ``integral Y_lm Y_l'm' dOmega = delta_ll' delta_mm'``;

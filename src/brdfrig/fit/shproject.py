@@ -1,6 +1,6 @@
 """Projection of radiance samples onto real SH, reconstruction, and band windows.
 
-Conventions: ``fit.sh`` (real orthonormal SH, column ``l*l + l + m``).  A
+Conventions: ``brdfrig.fit.sh`` (real orthonormal SH, column ``l*l + l + m``).  A
 coefficient array has shape ``(ncoef, C)`` with ``ncoef = (lmax + 1)**2`` and one
 column per colour channel.
 
@@ -12,8 +12,8 @@ Two projection paths:
   memory stays bounded.  It is exact only as far as the solid angles are a good
   quadrature rule.
 - ``project_latlong`` / ``reconstruct_latlong`` (lat-long maps in the OpenEXR
-  convention of ``../shared/docs/MATH.md``, restated here because ``fit`` never
-  imports ``hdr``; a test checks they agree with ``hdr.envmap``): separable.  In
+  convention of ``docs/MATH.md``, restated here because ``fit`` never
+  imports ``hdr``; a test checks they agree with ``brdfrig.hdr.envmap``): separable.  In
   the frame whose pole is the map's +y axis, map rows are circles of constant
   colatitude ``theta_i = (i + 1/2) pi / H`` and columns equally spaced
   longitudes, so the longitude sums are one real FFT per row and the latitude
@@ -22,7 +22,7 @@ Two projection paths:
   rotation).  Treating pixels as point samples at their centres, this is EXACT
   for maps band-limited to ``lmax`` when ``2 lmax <= H - 1`` and ``2 lmax < W``,
   and costs O(H W log W + H lmax^2) instead of the O(H W lmax^2) of the dense
-  product.  Measured by ``python -m fit.bench_sh`` (one run, busy 2-core
+  product.  Measured by ``python -m benchmarks.bench_sh`` (one run, busy 2-core
   machine): a 1024x512 RGB map to l = 30 in 41 ms, against 91 ms for pyshtools'
   ``SHExpandDH`` (3 calls) and 7.3 s for the dense sphericart product.
 """
@@ -33,9 +33,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from fit.rotation import wigner_d_real
-from fit.scene import Environment
-from fit.sh import check_lmax, check_unit_dirs, sh_degree, sh_eval, sh_index
+from brdfrig.fit.rotation import wigner_d_real
+from brdfrig.fit.scene import Environment
+from brdfrig.fit.sh import check_lmax, check_unit_dirs, sh_degree, sh_eval, sh_index
 
 __all__ = [
     "WINDOWS",

@@ -8,7 +8,7 @@ the residual outside the column space), i.e. a streamed Householder QR
 (LAPACK ``geqrf`` via numpy, batched over channels).  Every solver starts from
 that factor, so rotations and design rows are computed once for all solvers.
 
-Solvers (``../shared/docs/MATH.md`` pitfalls 4-5):
+Solvers (``docs/MATH.md`` pitfalls 4-5):
 
 ``paper``     the seed's band-by-band normal equations (one block Gauss-Seidel
               sweep over bands, each band solved against the residual of the
@@ -129,7 +129,7 @@ class StreamedQR:
         """The system of ``A`` (n columns) from this factor of a reduced design ``A W`` (r columns).
 
         Exact when ``A = (A W) back``, i.e. the rows of ``A`` lie in the span ``back`` (C, r, n) maps
-        ``W``'s coordinates onto (:func:`fit.fitter.fit_brdf` streams rank-deficient models so): the
+        ``W``'s coordinates onto (:func:`brdfrig.fit.fitter.fit_brdf` streams rank-deficient models so): the
         returned factor ``R back`` (rows r.. zero) has the same ``R^T R = A^T A``, ``R^T z = A^T b``
         and residual outside the column space, which is all the solvers use.
         """
@@ -279,7 +279,7 @@ def probe_solution(qr: StreamedQR) -> np.ndarray:
     LU solve used before).  The damping keeps the normal-equation matrix's
     condition number below ``1 / PROBE_DAMPING^2`` = 1e10 (Cholesky cannot break down), so
     rank-deficient systems give a finite answer whose fitted values (and predictions in the span of
-    the data) converge with the exact ones; the stopping rule of :func:`fit.fitter.fit_brdf`
+    the data) converge with the exact ones; the stopping rule of :func:`brdfrig.fit.fitter.fit_brdf`
     compares such predictions.
     """
     n = qr.n

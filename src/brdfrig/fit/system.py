@@ -4,7 +4,7 @@ Every linear model writes the radiance a camera at ``v = (0, 0, 1)`` sees at a
 sphere point with unit normal ``n`` as ``B(n) = A(n) @ x`` per colour channel,
 where the design row ``A(n)`` depends only on the lighting's SH coefficients
 ``L_lm`` (per channel) and ``n``; ``x`` are the BRDF unknowns.  Models
-(``../shared/docs/MATH.md``, "Reflected radiance of a sphere, in real SH"):
+(``docs/MATH.md``, "Reflected radiance of a sphere, in real SH"):
 
 ``diffuse``  ``B = sum_l a_l sum_m L_lm Y_lm(n)``: radially symmetric about the
              normal (Funk-Hecke); a Lambertian BRDF of albedo ``a`` has
@@ -17,8 +17,8 @@ where the design row ``A(n)`` depends only on the lighting's SH coefficients
              and ``w_o' = (-sin theta_N, 0, cos theta_N)`` (the sine-order terms vanish there).
 
 Bands the lighting cannot excite are left out by passing the ``bands`` to keep
-(:mod:`fit.identifiability` decides which).  The rotated lighting is computed
-once per block for all channels (``fit.rotation.local_lighting``); :func:`design_rows`
+(:mod:`brdfrig.fit.identifiability` decides which).  The rotated lighting is computed
+once per block for all channels (``brdfrig.fit.rotation.local_lighting``); :func:`design_rows`
 assembles the rows of pixels of several scenes with the direction SH evaluated once.
 """
 
@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from fit.sh import sh_eval, sh_index
-from fit.rotation import local_lighting
+from brdfrig.fit.sh import sh_eval, sh_index
+from brdfrig.fit.rotation import local_lighting
 
 __all__ = ["LINEAR_MODELS", "ModelSpec", "design_block", "design_rows", "outgoing_directions", "mirror_directions"]
 

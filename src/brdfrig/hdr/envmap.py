@@ -1,6 +1,6 @@
 """Environment-image geometry: per-pixel directions and exact solid angles, and inverse maps.
 
-Conventions (public contract, ``../shared/docs/MATH.md``): world frame
+Conventions (public contract, ``docs/MATH.md``): world frame
 right-handed, camera far along +z; image column grows with +x, row grows with
 -y; pixel ``(i, j)`` has its centre at continuous image coordinates
 ``(x, y) = (j + 0.5, i + 0.5)``.  Directions are unit vectors the light

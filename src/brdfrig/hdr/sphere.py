@@ -1,6 +1,6 @@
 """Pixels of a sphere seen orthographically: which pixels, their normals and their weights.
 
-Convention (``../shared/docs/MATH.md``): the sphere's outline is the circle
+Convention (``docs/MATH.md``): the sphere's outline is the circle
 ``(cx, cy, r)`` in image coordinates (pixel ``(i, j)`` has its centre at
 ``(j + 0.5, i + 0.5)``, y down); the normal of the pixel at offset
 ``(dx, dy) = (x - cx, cy - y) / r`` is ``n = (dx, dy, sqrt(1 - dx^2 - dy^2))``

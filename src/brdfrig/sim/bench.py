@@ -5,7 +5,7 @@ can score the whole pipeline:
 
 * :func:`procedural_environment` -- a sky gradient, a sun, two windows and a
   floor, as a function of direction (no external data); world frame of
-  ``../shared/docs/MATH.md`` (+y up, camera along +z);
+  ``docs/MATH.md`` (+y up, camera along +z);
 * one orthographic camera frame (default 640 x 240 pixels, ``scale`` resizes
   it): a chrome probe ball on the left (sub-unity albedo, dark blemishes fixed
   on its surface), sample spheres with analytic BRDFs (:mod:`brdfrig.fit.analytic`) to
