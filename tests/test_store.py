@@ -9,8 +9,8 @@ import os
 
 import pytest
 
-from capture import store as store_mod
-from capture.store import DiskFullError, SessionStore, StoreError, atomic_write_bytes
+from brdfrig.session import store as store_mod
+from brdfrig.session.store import DiskFullError, SessionStore, StoreError, atomic_write_bytes
 
 
 def make_raw(store: SessionStore, name: str, data: bytes) -> str:
@@ -98,25 +98,45 @@ def test_disk_full_keeps_everything_stored(tmp_path, monkeypatch):
     s = SessionStore.create(tmp_path / "sess", {})
     a = make_raw(s, "a", b"A" * 500)
     manifest_before = (tmp_path / "sess" / "manifest.json").read_bytes()
-    real = store_mod._write_fully
+    import brdfrig._atomic as atomic_mod
+
+    real = atomic_mod.write_all
 
     def full(fd, data):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(store_mod, "_write_fully", full)
+    monkeypatch.setattr(atomic_mod, "write_all", full)
     src = s.incoming / "b.dng"
     src.write_bytes(b"B" * 500)
     with pytest.raises(DiskFullError, match=r"disk full while writing .*manifest.json; nothing already stored was changed"):
         s.store_file(src, "raw", "b", kind="exposure", key="b")
-    monkeypatch.setattr(store_mod, "_write_fully", real)
+    monkeypatch.setattr(atomic_mod, "write_all", real)
     assert (tmp_path / "sess" / "manifest.json").read_bytes() == manifest_before
     reopened = SessionStore.open(tmp_path / "sess")
     v = reopened.verify()
     assert v.ok == [a] and v.passed
     assert src.exists() and not v.untracked  # the camera file was not lost, no half-stored copy
-    assert not [p for p in (tmp_path / "sess").rglob("*.tmp")]
+    assert not [p for p in (tmp_path / "sess").rglob("*.tmp*")]
 
 
-def test_results_dirs_are_fresh(tmp_path):
+def test_results_dirs_are_fresh_and_appear_only_when_committed(tmp_path):
     s = SessionStore.create(tmp_path / "sess", {})
-    assert [s.new_results_dir().name for _ in range(3)] == ["fit-001", "fit-002", "fit-003"]
+    names = []
+    for k in range(3):
+        staging = s.staging_results_dir()
+        (staging / "x.json").write_text(str(k))
+        assert not list((tmp_path / "sess" / "results").glob("fit-*")) or names  # nothing visible before a commit
+        names.append(s.commit_results(staging).name)
+    assert names == ["fit-001", "fit-002", "fit-003"]
+    assert (tmp_path / "sess" / "results" / "fit-002" / "x.json").read_text() == "1"
+
+
+def test_a_dead_runs_staging_directory_is_removed_by_the_next_commit(tmp_path):
+    s = SessionStore.create(tmp_path / "sess", {})
+    dead = tmp_path / "sess" / "results" / ".staging-999999999-abc"  # no such PID
+    dead.mkdir()
+    (dead / "half.json").write_text("{")
+    live = s.staging_results_dir()  # this process: kept until committed
+    other = s.staging_results_dir()
+    assert s.commit_results(live).name == "fit-001"
+    assert not dead.exists() and other.exists()

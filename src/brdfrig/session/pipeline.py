@@ -32,7 +32,8 @@ from typing import Callable
 import numpy as np
 
 from brdfrig.session.config import FitPreset, SessionConfig, stored_session_config
-from brdfrig.session.store import SessionStore, atomic_write_bytes
+from brdfrig._atomic import write_bytes as atomic_write_bytes
+from brdfrig.session.store import SessionStore
 from brdfrig.fit.brdffile import jsonable
 from brdfrig.fit.metrics import relative_rms
 
@@ -250,7 +251,7 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
             for s in tqdm(range(config.plan.scenes), desc="unwrap probe", unit="scene", file=sys.stderr,
                           disable=not progress, dynamic_ncols=True)]
     per_sample = sample_scenes(config, merged, envs)
-    results_dir = store.new_results_dir()
+    results_dir = store.staging_results_dir()  # renamed to results/fit-NNN only once complete
     result = PipelineResult(results_dir, merged=len(merged), merged_from_cache=n_cached, scenes=envs)
     stats_all = {"session": str(store.root), "fit": asdict(fit), "samples": {}}
     for name, (scenes, pixels) in per_sample.items():
@@ -260,7 +261,7 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
         brdf_path = results_dir / f"{name}.brdf.json"
         report = dict(res.report)
         save_brdf(brdf_path, res.brdf, report,
-                  provenance={"session": str(store.root), "sample": name, "results": results_dir.name})
+                  provenance={"session": str(store.root), "sample": name})
         own = []
         for s in scenes:
             w = s.weights > 0
@@ -282,6 +283,10 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
         for warning in report.get("warnings", []):
             echo(f"  {name}: warning: {warning}")
     atomic_write_bytes(results_dir / "stats.json", json.dumps(jsonable(stats_all), indent=1).encode())
+    result.results_dir = results_dir = store.commit_results(results_dir)
+    for sample in result.samples:
+        sample.brdf_path = results_dir / sample.brdf_path.name
+        sample.figure_path = sample.figure_path and results_dir / sample.figure_path.name
     store.append("fit", results=str(results_dir.relative_to(store.root)), fit=stats_all["fit"],
                  samples={k: v["model"] for k, v in stats_all["samples"].items()})
     return result

@@ -39,6 +39,11 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from brdfrig._atomic import fsync_dir as _fsync_dir
+from brdfrig._atomic import write_all as _write_fully
+from brdfrig._atomic import write_bytes as atomic_write_bytes
+from brdfrig.errors import DiskFullError, StoreError
+
 __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
@@ -62,32 +67,17 @@ CACHE_DIR = "cache"
 RESULTS_DIR = "results"
 
 
-class StoreError(ValueError):
-    """The directory is not a usable session (wrong kind, newer format, corrupt metadata)."""
-
-
-class DiskFullError(OSError):
-    """The disk filled up while writing; what the manifest lists is intact."""
+def _pid_alive(staging: Path) -> bool:
+    """Whether the process named in a staging directory's name (``.staging-PID-*``) still runs."""
+    try:
+        os.kill(int(staging.name.split("-")[1]), 0)
+    except (OSError, ValueError, IndexError):
+        return False
+    return True
 
 
 def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
-
-
-def _write_fully(fd: int, data: bytes) -> None:
-    """``os.write`` until every byte is written (a single call may write fewer)."""
-    view = memoryview(data)
-    while view:
-        n = os.write(fd, view)
-        view = view[n:]
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _disk_full(exc: OSError, what: Path) -> OSError:
@@ -95,35 +85,6 @@ def _disk_full(exc: OSError, what: Path) -> OSError:
     if exc.errno == errno.ENOSPC:
         return DiskFullError(errno.ENOSPC, f"disk full while writing {what}; nothing already stored was changed")
     return exc
-
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, overwrite: bool = True) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file + fsync + rename + directory fsync).
-
-    With ``overwrite=False`` the final step is ``os.link``, which fails with
-    ``FileExistsError`` rather than replace an existing file.  On any error the
-    temporary file is removed and ``path`` is unchanged.  ``ENOSPC`` becomes
-    :class:`DiskFullError`.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        try:
-            _write_fully(fd, data)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            os.link(tmp, path)
-            os.unlink(tmp)
-        _fsync_dir(path.parent)
-    except OSError as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise _disk_full(exc, path) from exc
-    return path
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -379,18 +340,37 @@ class SessionStore:
                     result.untracked.append(rel)
         return result
 
-    def new_results_dir(self) -> Path:
-        """A fresh ``results/fit-NNN`` directory (earlier results are never overwritten)."""
+    def staging_results_dir(self) -> Path:
+        """A new private directory ``results/.staging-PID-*`` to build one pipeline run's outputs in.
+
+        Nothing in it counts until :meth:`commit_results` renames it to ``fit-NNN``; a run
+        that dies leaves only its staging directory, which a later commit removes.
+        """
         base = self.root / RESULTS_DIR
         base.mkdir(exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".staging-{os.getpid()}-", dir=base))
+
+    def commit_results(self, staging: Path) -> Path:
+        """Rename a finished staging directory to the next free ``results/fit-NNN`` (atomic; earlier
+        results are never overwritten) and remove staging directories of runs that died."""
+        base = self.root / RESULTS_DIR
+        _fsync_dir(staging)
         n = 1 + max((int(m.group(1)) for p in base.iterdir() if (m := re.fullmatch(r"fit-(\d+)", p.name))), default=0)
         while True:
             path = base / f"fit-{n:03d}"
-            try:
-                path.mkdir()
-                return path
-            except FileExistsError:
-                n += 1
+            if not path.exists():
+                try:
+                    os.rename(staging, path)  # fails if another run filled that name meanwhile
+                    break
+                except OSError as exc:
+                    if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                        raise
+            n += 1
+        _fsync_dir(base)
+        for p in base.glob(".staging-*"):
+            if p.is_dir() and not _pid_alive(p):
+                shutil.rmtree(p, ignore_errors=True)
+        return path
 
     def clean_incoming(self) -> list[str]:
         """Remove leftovers in :attr:`incoming` (files a crashed run never stored); return their names."""
