@@ -30,6 +30,7 @@ from pathlib import Path
 
 from brdfrig.evaluate.cache import CachedGroundTruth
 from brdfrig.evaluate.probes import box_downsample as _box_downsample
+from brdfrig.evaluate.measured import add_arguments as add_measured_arguments
 
 DEFAULT_PROBES = Path(__file__).resolve().parents[4] / "shared" / "data" / "probes"
 MAP_ROWS = {"quick": 16, "full": 64}
@@ -51,6 +52,10 @@ def register(subparsers) -> None:
                         "allows; every case runs at least once, faster ones 3 times (default: 210 full, 20 quick)")
     p.add_argument("--probes", type=Path, default=DEFAULT_PROBES, help="directory of lat-long .hdr/.exr probes (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--measured", action="store_true",
+                   help="the measured-materials benchmark instead (brdfrig.evaluate.measured: fit under one probe, "
+                        "relight under others, every model; table, summary, errors.png, worst.png, measured.json)")
+    add_measured_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -63,9 +68,13 @@ def _procedural(rows: int):
 
 
 def run(args) -> int:
+    if args.measured:
+        from brdfrig.evaluate.measured_run import run_from_args
+
+        return run_from_args(args)
     import numpy as np
 
-    from brdfrig.session.store import atomic_write_bytes
+    from brdfrig._atomic import write_bytes as atomic_write_bytes
     from brdfrig.evaluate.bench import (FAST_S, FULL, QUICK, format_phases, format_solver_comparison, format_table, plot_pareto,
                            rows_to_json, run_benchmark)
     from brdfrig.hdr.sphere import sphere_pixels

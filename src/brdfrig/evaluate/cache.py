@@ -90,7 +90,7 @@ class CachedGroundTruth:
 
     def __call__(self, brdf, normals, env, identity: bytes | None = None) -> np.ndarray:
         """The render of ``brdf`` at ``normals`` under ``env`` (view +z): from the cache, else rendered and stored."""
-        from brdfrig.session.store import atomic_write_bytes
+        from brdfrig._atomic import write_bytes as atomic_write_bytes
 
         path = self.directory / f"gt-{self.key(brdf, normals, env, identity=identity)}.npy"
         if path.is_file():

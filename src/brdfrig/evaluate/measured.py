@@ -1,0 +1,428 @@
+"""Measured-materials benchmark: fit a sphere of a real material under one probe, relight it under others.
+
+The standard case (issue 10; everyone tuning a model calls :func:`relight_case`):
+
+- a sphere of ``size`` px (radius ``size/2``, MATH.md image convention), its pixels
+  from :func:`brdfrig.hdr.sphere.sphere_pixels` (limb pixels with weight 0 are left out);
+- ground truth: the material rendered by its ground-truth renderer (measured
+  materials: :mod:`brdfrig.fit.groundtruth` with the sharp-lobe quadrature; analytic
+  ones: :func:`brdfrig.fit.groundtruth.render_groundtruth`) under the fit probe
+  box-downsampled to ``2 env_rows x env_rows`` (:func:`brdfrig.evaluate.probes.probe_environment`),
+  and under each relight probe; renders are cached on disk
+  (:class:`brdfrig.evaluate.cache.CachedGroundTruth`, keyed by the material file's
+  sha256, every input and the renderer's source);
+- ``scenes`` > 1: the fit lighting turned about +y by ``30 k`` degrees, k = 0 .. scenes-1
+  (a turned rig);
+- noise: each fitted pixel value times ``1 + noise * N(0, 1)`` (per channel, seeded);
+- the model is fitted by :func:`brdfrig.fit.fitter.fit_brdf` (wall clock timed) and
+  relit (``brdf.predict``) under each relight probe; the error is the relative RMS
+  over the sphere's pixels (:func:`brdfrig.fit.metrics.relative_rms`, pixel weights).
+
+Materials: every ``*.h5`` neural fit (or MERL ``.binary``) under ``rgl/`` and
+``nielsen/`` of :data:`MEASURED_DIR`, named ``group/stem`` (``_rgb`` dropped); the
+``nielsen`` group is held out from tuning (:data:`HELD_OUT_GROUPS`).
+
+Module CLI (also ``brdfrig bench --measured``)::
+
+    python -m brdfrig.evaluate.measured --materials rgl/acrylic_felt_green,nielsen/cardboard \\
+        --models auto,microfacet --scenes 1 --noise 0.01 --out measured-out
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from brdfrig.errors import InputError
+from brdfrig.evaluate.cache import CachedGroundTruth, brdf_identity
+from brdfrig.evaluate.probes import DEFAULT_PROBE_DIR, probe_environment
+from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.scene import Environment, Scene
+
+__all__ = [
+    "MEASURED_DIR",
+    "HELD_OUT_GROUPS",
+    "DEFAULT_CACHE_DIR",
+    "Material",
+    "CaseSetup",
+    "Truth",
+    "CaseResult",
+    "model_names",
+    "list_materials",
+    "find_materials",
+    "render_truth",
+    "fit_and_relight",
+    "relight_case",
+    "main",
+]
+
+MEASURED_DIR = Path(__file__).resolve().parents[4] / "shared" / "data" / "measured"
+"""``../shared/data/measured`` beside the source tree (``rgl/``, ``nielsen/``)."""
+HELD_OUT_GROUPS = ("nielsen",)
+"""Material groups kept out of tuning (a user's materials): reported separately."""
+DEFAULT_CACHE_DIR = Path(tempfile.gettempdir()) / "brdfrig-gt-cache"
+"""Where :func:`relight_case` caches ground-truth renders unless told otherwise (shared by callers on this machine)."""
+TURN_DEG = 30.0
+"""Angle between turned scenes (degrees about +y)."""
+MATERIAL_SUFFIXES = (".h5", ".binary")
+
+
+def model_names() -> tuple[str, ...]:
+    """Every model the fitter offers, ``auto`` first (the fitter's registry; never listed here)."""
+    from brdfrig.fit.registry import MODELS
+
+    return tuple(MODELS)
+
+
+@dataclass
+class Material:
+    """A material of the benchmark: a measured file (loaded on first use) or an in-memory BRDF.
+
+    Attributes
+    ----------
+    name : str
+        ``group/stem`` for files (``rgl/acrylic_felt_green``), any label otherwise.
+    path : Path or None
+        The measured file (neural ``.h5`` with its ``.json``, or MERL ``.binary``).
+    brdf : object or None
+        The BRDF (loaded from ``path`` on first use when None).
+    held_out : bool
+        Kept out of tuning (``nielsen`` group).
+    """
+
+    name: str
+    path: Path | None = None
+    brdf: object = None
+    held_out: bool = False
+    _identity: bytes | None = field(default=None, repr=False)
+
+    @classmethod
+    def from_path(cls, path: str | Path) -> "Material":
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"measured material {path} does not exist")
+        stem = path.stem[: -len("_rgb")] if path.stem.endswith("_rgb") else path.stem
+        group = path.parent.name
+        return cls(f"{group}/{stem}", path, None, group in HELD_OUT_GROUPS)
+
+    def load(self):
+        """The material's BRDF (read with :func:`brdfrig.fit.measured.load_measured` on first use)."""
+        if self.brdf is None:
+            from brdfrig.fit.measured import load_measured
+
+            self.brdf = load_measured(self.path)
+        return self.brdf
+
+    def identity(self) -> bytes:
+        """Cache identity: sha256 of the file (and its ``.json`` beside it), else of the BRDF's values."""
+        if self._identity is None:
+            if self.path is None:
+                self._identity = hashlib.sha256(brdf_identity(self.brdf)).digest()
+            else:
+                h = hashlib.sha256(self.path.read_bytes())
+                side = self.path.with_suffix(".json")
+                if side.is_file():
+                    h.update(side.read_bytes())
+                self._identity = h.digest()
+        return self._identity
+
+
+def list_materials(root: str | Path = MEASURED_DIR) -> list[Material]:
+    """Every measured material under ``root`` (``group/NAME.h5`` or ``.binary``), sorted by name."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"measured-materials directory {root} does not exist")
+    paths = sorted(p for p in root.glob("*/*") if p.suffix in MATERIAL_SUFFIXES)
+    if not paths:
+        raise InputError(f"no measured materials (*/*.h5, */*.binary) under {root}")
+    return [Material.from_path(p) for p in paths]
+
+
+def find_materials(names, root: str | Path = MEASURED_DIR) -> list[Material]:
+    """The materials named (``group/stem``, or a bare stem when unambiguous), in the order given."""
+    every = list_materials(root)
+    by_name = {m.name: m for m in every}
+    out = []
+    for name in names:
+        hits = [by_name[name]] if name in by_name else [m for m in every if m.name.split("/", 1)[1] == name]
+        if len(hits) != 1:
+            what = "matches several" if hits else "matches no"
+            raise InputError(f"material {name!r} {what} material under {root} (e.g. {every[0].name})")
+        out.append(hits[0])
+    return out
+
+
+def _render_material(material: Material, normals: np.ndarray, env: Environment) -> np.ndarray:
+    """Ground-truth render of a :class:`Material` seen from +z.
+
+    Analytic families: :func:`brdfrig.fit.groundtruth.render_groundtruth` (cell-centre quadrature);
+    measured ones: their ``predict``, the sharp-lobe quadrature render of the MERL table
+    (:func:`brdfrig.fit.groundtruth.render_tabulated`; a network is tabulated first).
+    """
+    from brdfrig.fit.groundtruth import render_groundtruth
+
+    brdf = material.load()
+    if hasattr(brdf, "kernel_params"):
+        return render_groundtruth(brdf, normals, env)
+    return brdf.predict(env, normals)
+
+
+def _renderer_sources():
+    """Modules whose source decides a ground-truth render (they enter the cache key)."""
+    import importlib
+
+    names = ("brdfrig.fit.groundtruth", "brdfrig.fit.analytic", "brdfrig.fit.quadrature", "brdfrig.fit.measured")
+    mods = []
+    for name in names:
+        try:
+            mods.append(importlib.import_module(name))
+        except ImportError:
+            continue
+    return mods
+
+
+def make_cache(directory: str | Path = DEFAULT_CACHE_DIR) -> CachedGroundTruth:
+    """The disk cache of measured-material renders in ``directory``."""
+    return CachedGroundTruth(Path(directory), render=_render_material, sources=_renderer_sources())
+
+
+@dataclass(frozen=True)
+class CaseSetup:
+    """Geometry and lighting of a benchmark case (defaults: the issue's standard case)."""
+
+    size: int = 96
+    fit_probe: str = "grace"
+    relight_probes: tuple[str, ...] = ("ennis", "pisa")
+    env_rows: int = 64
+    scenes: int = 1
+    probe_dir: Path = DEFAULT_PROBE_DIR
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.size, (int, np.integer)) and self.size >= 4):
+            raise InputError(f"sphere size must be an integer >= 4 pixels, got {self.size!r}")
+        if not (isinstance(self.scenes, (int, np.integer)) and 1 <= self.scenes <= 360 / TURN_DEG):
+            raise InputError(f"scenes must be an integer in 1..{int(360 / TURN_DEG)}, got {self.scenes!r}")
+        if not self.relight_probes:
+            raise InputError("at least one relight probe is needed")
+
+
+@dataclass
+class Truth:
+    """Ground truth of one material under one :class:`CaseSetup`: sphere pixels, fit scenes, relit references.
+
+    ``rows``/``cols`` place the pixels in the ``size x size`` image; ``scenes`` hold the
+    noise-free fit renders; ``relight`` maps a probe name to ``(env, (N, 3) reference radiance)``.
+    """
+
+    material: Material
+    setup: CaseSetup
+    rows: np.ndarray
+    cols: np.ndarray
+    normals: np.ndarray
+    weights: np.ndarray
+    scenes: list[Scene]
+    relight: dict[str, tuple[Environment, np.ndarray]]
+
+
+def _sphere(size: int):
+    from brdfrig.hdr.sphere import sphere_pixels
+
+    px = sphere_pixels((size, size), (size / 2, size / 2, size / 2))
+    seen = px.weights > 0
+    return px.rows[seen], px.cols[seen], np.ascontiguousarray(px.normals[seen]), px.weights[seen]
+
+
+def render_truth(material: Material, setup: CaseSetup = CaseSetup(), cache: CachedGroundTruth | None = None) -> Truth:
+    """Render (or read from ``cache``) the fit scenes and relight references of ``material``."""
+    from brdfrig.sim.bench import rotation_y
+
+    cache = make_cache() if cache is None else cache
+    rows, cols, normals, weights = _sphere(setup.size)
+    fit_env = probe_environment(setup.fit_probe, setup.env_rows, setup.probe_dir)
+    scenes = []
+    for k in range(setup.scenes):
+        env = fit_env if k == 0 else fit_env.rotated(rotation_y(TURN_DEG * k))
+        scenes.append(Scene(env, normals, cache(material, normals, env, identity=material.identity()), weights))
+    relight = {}
+    for name in setup.relight_probes:
+        env = probe_environment(name, setup.env_rows, setup.probe_dir)
+        relight[name] = (env, cache(material, normals, env, identity=material.identity()))
+    return Truth(material, setup, rows, cols, normals, weights, scenes, relight)
+
+
+@dataclass
+class CaseResult:
+    """One fit of one material by one model, relit.
+
+    Attributes
+    ----------
+    material, model : str
+        Material name and the model asked for.
+    chosen_model : str
+        The model the fitter returned (``auto``'s choice).
+    scenes : int
+    noise : float
+        Relative Gaussian noise of the fitted pixels.
+    errors : dict
+        Relight probe -> relative RMS error over the sphere's pixels.
+    fit_seconds : float
+        Wall clock of the fit.
+    estimate : float or None
+        The fitter's own estimate of its relighting error (None if it reports none).
+    held_out : bool
+    estimate_method : str
+        How the fitter obtained ``estimate``.
+    relit : dict
+        Relight probe -> (N, 3) relit radiance (not written to JSON).
+    """
+
+    material: str
+    model: str
+    chosen_model: str
+    scenes: int
+    noise: float
+    errors: dict[str, float]
+    fit_seconds: float
+    estimate: float | None
+    held_out: bool
+    estimate_method: str = ""
+    relit: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+
+    @property
+    def error(self) -> float:
+        """Error under the first relight probe (the headline number)."""
+        return next(iter(self.errors.values()))
+
+
+def reported_estimate(report: dict) -> tuple[float | None, str]:
+    """The fitter's estimate of its relighting error under other lighting and how it was obtained.
+
+    ``report`` is the dict of a :class:`brdfrig.fit.report.FitReport`; ``(None, "")`` if it has none.
+    """
+    est = report.get("relight")
+    if isinstance(est, dict) and est.get("value") is not None and np.isfinite(est["value"]):
+        return float(est["value"]), str(est.get("method", ""))
+    return None, ""
+
+
+def noisy_scenes(scenes: list[Scene], noise: float, seed: int = 0) -> list[Scene]:
+    """The scenes with each pixel value times ``1 + noise * N(0, 1)`` (one seeded generator over all scenes)."""
+    if not (math.isfinite(noise) and noise >= 0):
+        raise InputError(f"noise must be a finite number >= 0, got {noise!r}")
+    if noise == 0:
+        return list(scenes)
+    rng = np.random.default_rng(seed)
+    return [Scene(s.env, s.normals, s.radiance * (1 + noise * rng.standard_normal(s.radiance.shape)), s.weights)
+            for s in scenes]
+
+
+def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int = 0, fit=None) -> CaseResult:
+    """Fit ``model`` to the truth's scenes (with ``noise``) and relight it under every relight probe.
+
+    ``fit`` : callable ``(scenes, model) -> FitResult`` (default :func:`brdfrig.fit.fitter.fit_brdf`
+    without progress bars); only it is timed.
+    """
+    if fit is None:
+        from brdfrig.fit.fitter import fit_brdf
+
+        def fit(scenes, model):
+            return fit_brdf(scenes, model=model, progress=False)
+
+    scenes = noisy_scenes(truth.scenes, noise, seed)
+    t0 = time.perf_counter()
+    result = fit(scenes, model)
+    seconds = time.perf_counter() - t0
+    errors, relit = {}, {}
+    for name, (env, reference) in truth.relight.items():
+        relit[name] = np.asarray(result.brdf.predict(env, truth.normals), dtype=np.float64)
+        errors[name] = relative_rms(relit[name], reference, truth.weights)
+    report = result.report.to_dict() if hasattr(result.report, "to_dict") else result.report
+    estimate, method = reported_estimate(report)
+    return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
+                      float(noise), errors, seconds, estimate, truth.material.held_out, method, relit)
+
+
+def _as_material(material) -> Material:
+    if isinstance(material, Material):
+        return material
+    if isinstance(material, (str, Path)):
+        path = Path(material)
+        return Material.from_path(path) if path.suffix else find_materials([str(material)])[0]
+    return Material(type(material).__name__, None, material)
+
+
+def relight_case(material, model: str, *, size: int = 96, fit_probe: str = "grace",
+                 relight_probes: tuple[str, ...] = ("ennis", "pisa"), env_rows: int = 64, scenes: int = 1,
+                 noise: float = 0.0, seed: int = 0, cache_dir: str | Path = DEFAULT_CACHE_DIR,
+                 probe_dir: str | Path = DEFAULT_PROBE_DIR) -> CaseResult:
+    """The standard case for one material and one model (see module docstring).
+
+    Parameters
+    ----------
+    material : Material, path, name or BRDF
+        A measured file (``.h5``/``.binary``), a material name (``rgl/NAME`` or ``NAME``), or any BRDF
+        object the ground-truth renderer takes (e.g. :class:`brdfrig.fit.analytic.GGX`).
+    model : str
+        A model name of the fitter (:func:`model_names`).
+    size, fit_probe, relight_probes, env_rows, scenes : see :class:`CaseSetup`.
+    noise, seed : relative pixel noise of the fit images and its seed.
+    cache_dir : where ground-truth renders are cached.
+    """
+    setup = CaseSetup(int(size), fit_probe, tuple(relight_probes), int(env_rows), int(scenes), Path(probe_dir))
+    truth = render_truth(_as_material(material), setup, make_cache(cache_dir))
+    return fit_and_relight(truth, model, noise=noise, seed=seed)
+
+
+def _split(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The measured benchmark's options (shared by this module's CLI and ``brdfrig bench --measured``)."""
+    g = parser.add_argument_group("measured-materials benchmark")
+    g.add_argument("--materials", type=_split, default=None, metavar="NAME,...",
+                   help="materials (group/name or name; default: every one under --measured-dir)")
+    g.add_argument("--models", type=_split, default=None, metavar="MODEL,...",
+                   help="models (default: every model of the fitter, auto first)")
+    g.add_argument("--scenes", type=int, nargs="+", default=[1], metavar="N",
+                   help="scene counts (1 = the fit probe; 12 = turned in 30 degree steps; default: 1)")
+    g.add_argument("--noise", type=float, nargs="+", default=[0.0], metavar="SIGMA",
+                   help="relative pixel noise levels (default: 0; e.g. --noise 0 0.01)")
+    g.add_argument("--size", type=int, default=96, help="sphere image size in pixels (default: %(default)s)")
+    g.add_argument("--fit-probe", default="grace", help="probe of the fit (default: %(default)s)")
+    g.add_argument("--relight-probes", type=_split, default=["ennis", "pisa"], metavar="NAME,...",
+                   help="probes of the relighting (default: ennis,pisa; the first is the headline)")
+    g.add_argument("--env-rows", type=int, default=64, help="lat-long rows of the probes (default: %(default)s)")
+    g.add_argument("--measured-dir", type=Path, default=MEASURED_DIR, help="measured materials (default: %(default)s)")
+    g.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
+    g.add_argument("--peer", choices=["mitsuba"], default=None, help="also fit the Mitsuba principled peer")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m brdfrig.evaluate.measured``: run the benchmark and print its table (exit 2 on bad input)."""
+    from brdfrig.evaluate.measured_run import run_from_args
+
+    parser = argparse.ArgumentParser(prog="python -m brdfrig.evaluate.measured", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    parser.add_argument("--out", type=Path, default=Path("measured-out"), help="output directory (default: %(default)s)")
+    parser.add_argument("--probes", type=Path, default=DEFAULT_PROBE_DIR, help="probe directory (default: %(default)s)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    try:
+        return run_from_args(args)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

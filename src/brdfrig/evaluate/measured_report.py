@@ -1,0 +1,230 @@
+"""Tables, summary statistics, PNGs and JSON of a measured-materials benchmark run.
+
+Errors are the headline relight probe's (the first of ``--relight-probes``) unless a
+column says otherwise; statistics are over the tuning materials (not held out) and,
+separately, the held-out ones (``*`` in the tables).  Percentiles: numpy's linear
+interpolation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from brdfrig.evaluate.measured_run import MeasuredResult
+
+__all__ = ["summarize", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs",
+           "plot_errors", "plot_worst"]
+
+AUTO = "auto"
+PICK_RTOL = 1.1
+"""``auto`` picks well on a material when its error is within this factor of the best model's."""
+ESTIMATE_FACTOR = 2.0
+"""A reported estimate is good when within this factor of the measured error."""
+
+
+def _groups(result: MeasuredResult):
+    """``(scenes, noise) -> {material: {model: CaseResult}}`` in run order."""
+    out: dict = {}
+    for c in result.cases:
+        out.setdefault((c.scenes, c.noise), {}).setdefault(c.material, {})[c.model] = c
+    return out
+
+
+def _stats(values) -> dict:
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
+    if not len(v):
+        return {"n": 0, "median": None, "p90": None, "worst": None}
+    return {"n": int(len(v)), "median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "worst": float(v.max())}
+
+
+def summarize(result: MeasuredResult) -> list[dict]:
+    """One dict per (scenes, noise, model, subset) with error statistics, fit seconds and, for ``auto``,
+    how often it is within :data:`PICK_RTOL` of the best model and its estimate within :data:`ESTIMATE_FACTOR`."""
+    rows = []
+    for (scenes, noise), by_mat in _groups(result).items():
+        for subset, held in (("tuning", False), ("held-out", True)):
+            mats = {k: v for k, v in by_mat.items() if v and next(iter(v.values())).held_out == held}
+            if not mats:
+                continue
+            for model in result.models:
+                cases = [v[model] for v in mats.values() if model in v]
+                row = {"scenes": scenes, "noise": noise, "model": model, "subset": subset,
+                       **_stats([c.error for c in cases]),
+                       "fit_seconds_median": float(np.median([c.fit_seconds for c in cases])) if cases else None,
+                       "fit_seconds_total": float(sum(c.fit_seconds for c in cases))}
+                for probe in result.setup.relight_probes[1:]:
+                    row[f"{probe}"] = _stats([c.errors.get(probe) for c in cases])
+                if model == AUTO:
+                    row.update(_auto_quality(mats))
+                rows.append(row)
+    return rows
+
+
+def _auto_quality(mats: dict) -> dict:
+    picks, estimates, n_est = 0, 0, 0
+    for by_model in mats.values():
+        auto = by_model.get(AUTO)
+        others = [c.error for m, c in by_model.items() if m != AUTO]
+        if auto is None:
+            continue
+        if not others or auto.error <= PICK_RTOL * min(others) + 1e-12:
+            picks += 1
+        if auto.estimate is not None:
+            n_est += 1
+            ratio = auto.estimate / auto.error if auto.error > 0 else (1.0 if auto.estimate == 0 else math.inf)
+            estimates += 1 / ESTIMATE_FACTOR <= ratio <= ESTIMATE_FACTOR
+    return {"auto_within_1.1x_of_best": picks, "estimates_reported": n_est, "estimates_within_2x": estimates}
+
+
+def _pct(x) -> str:
+    return "     -" if x is None else f"{100 * x:6.2f}"
+
+
+def format_table(result: MeasuredResult) -> str:
+    """Per-material relighting errors (%, headline probe), one column per model, one block per (scenes, noise)."""
+    probe = result.setup.relight_probes[0]
+    lines = []
+    width = max([len(m.name) for m in result.materials] + [8]) + 1
+    for (scenes, noise), by_mat in _groups(result).items():
+        lines.append(f"-- {scenes} scene(s), noise {noise:g}: relighting error (%) under {probe}; "
+                     f"fit under {result.setup.fit_probe}; * = held out from tuning")
+        head = f"{'material':<{width}} " + " ".join(f"{m[:10]:>10}" for m in result.models)
+        lines.append(head + "  auto chose   estimate")
+        for name, by_model in by_mat.items():
+            held = next(iter(by_model.values())).held_out
+            cells = " ".join(f"{_pct(by_model[m].error) if m in by_model else '     -':>10}" for m in result.models)
+            auto = by_model.get(AUTO)
+            tail = "" if auto is None else f"  {auto.chosen_model[:11]:<11} {_pct(auto.estimate)}"
+            lines.append(f"{name + ('*' if held else ''):<{width}} {cells}{tail}")
+    return "\n".join(lines)
+
+
+def format_summary(result: MeasuredResult) -> str:
+    """Median / p90 / worst (%) per model and subset, median fit seconds, auto's pick and estimate quality."""
+    probe = result.setup.relight_probes[0]
+    others = result.setup.relight_probes[1:]
+    lines = [f"{'scenes':>6} {'noise':>5} {'subset':<8} {'model':<14} {'n':>3} {'median':>7} {'p90':>7} {'worst':>7}"
+             f" {'fit_s':>6}" + "".join(f"  {p + ' med/worst':>16}" for p in others) + "  notes"]
+    for r in summarize(result):
+        extra = "".join(f"  {_pct(r[p]['median']).strip():>7}/{_pct(r[p]['worst']).strip():<8}" for p in others)
+        note = ""
+        if r["model"] == AUTO:
+            note = (f"within {PICK_RTOL}x of best on {r['auto_within_1.1x_of_best']}/{r['n']}; estimate within "
+                    f"{ESTIMATE_FACTOR:g}x on {r['estimates_within_2x']}/{r['estimates_reported']} reported")
+        fit_s = "-" if r["fit_seconds_median"] is None else f"{r['fit_seconds_median']:.2f}"
+        lines.append(f"{r['scenes']:>6} {r['noise']:>5g} {r['subset']:<8} {r['model'][:14]:<14} {r['n']:>3} "
+                     f"{_pct(r['median']):>7} {_pct(r['p90']):>7} {_pct(r['worst']):>7} {fit_s:>6}{extra}  {note}")
+    return f"Summary: relighting error (%) under {probe} (other probes: median/worst)\n" + "\n".join(lines)
+
+
+def format_report(result: MeasuredResult) -> str:
+    """Table, summary and where the time went."""
+    s = result.setup
+    head = (f"brdfrig measured benchmark: {len(result.materials)} materials, {s.size} px spheres, "
+            f"fit {s.fit_probe}, relight {','.join(s.relight_probes)} ({2 * s.env_rows}x{s.env_rows}), "
+            f"models {','.join(result.models)}")
+    phases = ", ".join(f"{k} {v:.1f} s" for k, v in result.phases.items())
+    cache = f"ground truth: {result.cache_misses} rendered, {result.cache_hits} from the cache"
+    return "\n\n".join([head, format_table(result), format_summary(result), f"Time: {phases}; {cache}"])
+
+
+def result_to_json(result: MeasuredResult) -> dict:
+    """Every number of a run (cases without their images, summary, setup, phases)."""
+    s = result.setup
+    cases = [{"material": c.material, "model": c.model, "chosen_model": c.chosen_model, "scenes": c.scenes,
+              "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds,
+              "estimate": c.estimate, "estimate_method": c.estimate_method} for c in result.cases]
+    return {"setup": {"size": s.size, "fit_probe": s.fit_probe, "relight_probes": list(s.relight_probes),
+                      "env_rows": s.env_rows, "scene_counts": list(result.scene_counts), "noises": list(result.noises),
+                      "models": list(result.models)},
+            "materials": [{"name": m.name, "path": str(m.path) if m.path else None, "held_out": m.held_out}
+                          for m in result.materials],
+            "summary": summarize(result), "cases": cases, "phases_seconds": result.phases,
+            "cache": {"hits": result.cache_hits, "misses": result.cache_misses}}
+
+
+def plot_errors(result: MeasuredResult, path: Path) -> Path:
+    """PNG: relighting error per material (x) per model (markers), one panel per (scenes, noise), log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from brdfrig.session.figures import save_png
+
+    groups = _groups(result)
+    fig, axes = plt.subplots(len(groups), 1, figsize=(max(8.0, 0.22 * len(result.materials) + 3), 3.6 * len(groups)),
+                             squeeze=False)
+    for ax, ((scenes, noise), by_mat) in zip(axes[:, 0], groups.items()):
+        names = list(by_mat)
+        x = np.arange(len(names))
+        for model, marker in zip(result.models, "os^Dv<>px*h+"):
+            y = [by_mat[n][model].error if model in by_mat[n] else np.nan for n in names]
+            style = dict(ms=9, mfc="none", mew=1.5) if model == AUTO else dict(ms=4, alpha=0.8)
+            ax.plot(x, np.maximum(y, 1e-5), marker, label=model, **style)
+        ax.set_xticks(x, [n + ("*" if next(iter(by_mat[n].values())).held_out else "") for n in names],
+                      rotation=90, fontsize=6)
+        ax.set_yscale("log")
+        ax.set_ylabel("relighting error")
+        ax.set_title(f"{scenes} scene(s), noise {noise:g}: fit {result.setup.fit_probe}, "
+                     f"relight {result.setup.relight_probes[0]} (* held out)", fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, ncol=4)
+    fig.tight_layout()
+    return save_png(fig, path, dpi=100)
+
+
+def _image(truth, values: np.ndarray) -> np.ndarray:
+    img = np.zeros((truth.setup.size, truth.setup.size, values.shape[1]))
+    img[truth.rows, truth.cols] = values
+    return img
+
+
+def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int = 5) -> Path | None:
+    """PNG: reference vs relit sphere (and |difference| x4) of the ``count`` worst materials of ``model``
+    (first scene count, noise 0 or the first noise level), under the headline probe; same exposure per row."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from brdfrig.session.figures import save_png
+
+    scenes, noise = result.scene_counts[0], result.noises[0]
+    cases = sorted((c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise),
+                   key=lambda c: -c.error)[:count]
+    if not cases:
+        return None
+    probe = result.setup.relight_probes[0]
+    fig, axes = plt.subplots(len(cases), 3, figsize=(6.6, 2.3 * len(cases)), squeeze=False)
+    for row, case in zip(axes, cases):
+        truth = result.truths[(scenes, case.material)]
+        ref, relit = truth.relight[probe][1], case.relit[probe]
+        scale = np.percentile(ref, 99) or 1.0
+        for ax, (title, values) in zip(row, (("reference", ref), (f"{case.chosen_model} {100 * case.error:.1f}%", relit),
+                                             ("|diff| x4", 4 * np.abs(relit - ref)))):
+            ax.imshow(np.clip(_image(truth, values) / scale, 0, 1) ** (1 / 2.2))
+            ax.set_title(f"{case.material}: {title}" if title == "reference" else title, fontsize=7)
+            ax.axis("off")
+    fig.suptitle(f"worst {len(cases)} of {model} ({scenes} scene(s), noise {noise:g}, relit under {probe})", fontsize=8)
+    fig.tight_layout()
+    return save_png(fig, path, dpi=100)
+
+
+def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
+    """Write ``errors.png``, ``worst.png`` (if ``auto`` ran) and ``measured.json`` into ``out``."""
+    from brdfrig.fit.brdffile import jsonable
+    from brdfrig._atomic import write_bytes as atomic_write_bytes
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [plot_errors(result, out / "errors.png")]
+    worst = plot_worst(result, out / "worst.png", AUTO if AUTO in result.models else result.models[0])
+    if worst is not None:
+        paths.append(worst)
+    paths.append(atomic_write_bytes(out / "measured.json", json.dumps(jsonable(result_to_json(result)), indent=1).encode()))
+    return paths

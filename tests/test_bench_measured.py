@@ -1,0 +1,128 @@
+"""Measured-materials benchmark: the harness's oracle (exact family relights at ~0), its render cache, the CLI."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brdfrig.evaluate.measured import Material, make_cache, relight_case, render_truth, CaseSetup
+from brdfrig.fit.analytic import GGX, Lambertian
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.hdr.sphere import sphere_pixels
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+PROBES = SHARED / "data" / "probes"
+MEASURED = SHARED / "data" / "measured"
+GGX_TRUTH = GGX(alpha=0.3, f0=0.04, diffuse=(0.6, 0.4, 0.2))
+SMALL = dict(size=24, env_rows=16)
+
+
+@pytest.fixture
+def probes():
+    if not all((PROBES / f"{n}.hdr").is_file() for n in ("grace", "ennis", "pisa")):
+        pytest.skip("../shared/data/probes is absent")
+    return PROBES
+
+
+def _rms(a, b, w):
+    return float(np.sqrt(np.sum(w[:, None] * (a - b) ** 2) / np.sum(w[:, None] * b**2)))
+
+
+def test_exact_family_relights_at_zero_and_error_is_the_relative_rms(probes, tmp_path):
+    """Oracle: GGX rendered, fitted by the microfacet model (which contains GGX): ~0 relighting error;
+    the harness's error equals a relative RMS recomputed here from an independent render."""
+    case = relight_case(GGX_TRUTH, "microfacet", **SMALL, cache_dir=tmp_path, probe_dir=probes)
+    assert set(case.errors) == {"ennis", "pisa"} and case.chosen_model == "microfacet" and case.fit_seconds > 0
+    assert max(case.errors.values()) < 2e-3, case.errors
+    # the harness's number for a model that cannot fit GGX (Lambertian-only): the same relative RMS by hand
+    setup = CaseSetup(SMALL["size"], relight_probes=("ennis",), env_rows=SMALL["env_rows"], probe_dir=probes)
+    truth = render_truth(Material("ggx", brdf=GGX_TRUTH), setup, make_cache(tmp_path))
+    from brdfrig.evaluate.measured import fit_and_relight
+
+    diffuse = fit_and_relight(truth, "diffuse")
+    px = sphere_pixels((24, 24), (12.0, 12.0, 12.0))
+    seen = px.weights > 0
+    env = truth.relight["ennis"][0]
+    reference = render_groundtruth(GGX_TRUTH, px.normals[seen], env)
+    assert diffuse.errors["ennis"] == pytest.approx(_rms(diffuse.relit["ennis"], reference, px.weights[seen]), rel=1e-9)
+    assert diffuse.errors["ennis"] > 0.02  # a highlight the diffuse model cannot hold: the harness sees it
+
+
+def test_noise_and_turned_scenes(probes, tmp_path):
+    """Twelve turned scenes are renders under the fit probe turned 30 k degrees about +y; 1% noise is seeded."""
+    from brdfrig.evaluate.measured import noisy_scenes
+    from brdfrig.sim.bench import rotation_y
+
+    setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, scenes=3, probe_dir=probes)
+    brdf = Lambertian(albedo=(0.8, 0.5, 0.2))
+    truth = render_truth(Material("lambert", brdf=brdf), setup, make_cache(tmp_path))
+    assert len(truth.scenes) == 3
+    turned = truth.scenes[0].env.rotated(rotation_y(60.0))
+    np.testing.assert_allclose(truth.scenes[2].env.dirs, turned.dirs, atol=1e-12)
+    np.testing.assert_array_equal(truth.scenes[2].radiance, render_groundtruth(brdf, truth.normals, turned))
+    a, b = noisy_scenes(truth.scenes, 0.01, seed=3), noisy_scenes(truth.scenes, 0.01, seed=3)
+    np.testing.assert_array_equal(a[1].radiance, b[1].radiance)
+    rel = a[0].radiance / truth.scenes[0].radiance - 1
+    assert 0.008 < np.std(rel) < 0.012 and abs(np.mean(rel)) < 0.002
+
+
+def test_cache_returns_the_same_array_and_rerenders_a_damaged_file(probes, tmp_path):
+    setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, probe_dir=probes)
+    material = Material("ggx", brdf=GGX_TRUTH)
+    cache = make_cache(tmp_path)
+    first = render_truth(material, setup, cache)
+    assert (cache.misses, cache.hits) == (2, 0) and len(list(tmp_path.glob("gt-*.npy"))) == 2
+    again = render_truth(material, setup, cache)
+    assert (cache.misses, cache.hits) == (2, 2)
+    np.testing.assert_array_equal(again.scenes[0].radiance, first.scenes[0].radiance)
+    np.testing.assert_array_equal(again.relight["ennis"][1], first.relight["ennis"][1])
+    for f in tmp_path.glob("gt-*.npy"):
+        f.write_bytes(f.read_bytes()[:40])  # truncated
+    third = render_truth(material, setup, cache)
+    assert (cache.misses, cache.hits) == (4, 2)
+    np.testing.assert_array_equal(third.scenes[0].radiance, first.scenes[0].radiance)
+    # another material is another key
+    render_truth(Material("ggx2", brdf=GGX(alpha=0.31, f0=0.04, diffuse=(0.6, 0.4, 0.2))), setup, cache)
+    assert cache.misses == 6
+
+
+def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path):
+    if not (MEASURED / "rgl").is_dir():
+        pytest.skip("../shared/data/measured is absent")
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "brdfrig", "bench", "--measured", "--materials",
+           "rgl/acrylic_felt_green,nielsen/cardboard", "--models", "auto,diffuse", "--size", "16", "--env-rows", "8",
+           "--relight-probes", "ennis", "--no-progress", "--out", str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    text = proc.stdout
+    num = r"\d+\.\d\d"
+    assert re.search(rf"^rgl/acrylic_felt_green\s+{num}\s+{num}\s+\S+", text, re.M), text
+    assert re.search(rf"^nielsen/cardboard\*\s+{num}\s+{num}\s+\S+", text, re.M), text
+    assert re.search(rf"^\s+1\s+0\s+tuning\s+auto\s+1\s+{num}\s+{num}\s+{num}", text, re.M), text
+    assert re.search(rf"^\s+1\s+0\s+held-out\s+diffuse\s+1\s+{num}", text, re.M), text
+    for name in ("errors.png", "worst.png"):
+        assert (out / name).stat().st_size > 5_000
+    data = json.loads((out / "measured.json").read_text())
+    assert len(data["cases"]) == 4
+    assert {c["material"] for c in data["cases"] if c["held_out"]} == {"nielsen/cardboard"}
+    assert all(np.isfinite(c["errors"]["ennis"]) and c["errors"]["ennis"] >= 0 for c in data["cases"])
+    # a second run reads every ground truth from the cache
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "0 rendered, 4 from the cache" in proc.stdout
+
+
+def test_cli_bad_input_exits_2(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--materials", "nosuch",
+                           "--measured-dir", str(tmp_path), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and str(tmp_path) in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--noise", "nan",
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "--noise" in proc.stderr
