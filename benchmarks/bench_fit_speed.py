@@ -1,20 +1,20 @@
-"""Speed of :func:`fit.fitter.fit_brdf` on the headline cases of ``brdfrig bench``, stage by stage.
+"""Speed of :func:`brdfrig.fit.fitter.fit_brdf` on the headline cases of ``brdfrig bench``, stage by stage.
 
-Run ``python -m fit.bench_fit_speed`` (``--runs N``, default 7; ``--quick`` for a 128x128 sphere at
+Run ``python -m benchmarks.bench_fit_speed`` (``--runs N``, default 7; ``--quick`` for a 128x128 sphere at
 l = p = 4).  The two headline cases (issue 4: a 512x512 three-channel fit of ``full`` at l = p = 8 with
-the joint solver, twelve scenes <= 5 s, one scene <= 1 s) are built exactly as :func:`fit.bench.run_benchmark`
-builds them, with its functions: the GGX sphere :data:`fit.bench.TRUTH` rendered by the ground truth at
-:data:`fit.bench.FULL`'s ``sphere_size`` under the first real probe turned about the vertical axis in
-30 degree steps (:func:`fit.bench.rotate_environment`), resampled onto the headline sphere's pixels
-(``fit.bench._resample``).  Maps and sphere geometry are loaded as ``brdfrig bench`` loads them
-(``capture.cmd_bench``, ``hdr.sphere``): imported inside :func:`main` only, this driver is not part of
+the joint solver, twelve scenes <= 5 s, one scene <= 1 s) are built exactly as :func:`brdfrig.evaluate.bench.run_benchmark`
+builds them, with its functions: the GGX sphere :data:`brdfrig.evaluate.bench.TRUTH` rendered by the ground truth at
+:data:`brdfrig.evaluate.bench.FULL`'s ``sphere_size`` under the first real probe turned about the vertical axis in
+30 degree steps (:func:`brdfrig.evaluate.bench.rotate_environment`), resampled onto the headline sphere's pixels
+(``brdfrig.evaluate.bench._resample``).  Maps and sphere geometry are loaded as ``brdfrig bench`` loads them
+(``brdfrig.cli.bench``, ``brdfrig.hdr.sphere``): imported inside :func:`main` only, this driver is not part of
 ``fit``'s library import graph.
 
 Printed: per case, the median / min / max wall time of ``fit_brdf`` over the runs (one untimed warm-up
 first: numba and cached tables), the median of each stage of ``report["stage_seconds"]``
-(:data:`fit.fitter.STAGES`), and a peer measured in the same run: LAPACK's SVD-based least squares
+(:data:`brdfrig.fit.fitter.STAGES`), and a peer measured in the same run: LAPACK's SVD-based least squares
 (``numpy.linalg.lstsq``, ``gelsd``; the answer of the joint solver) of the dense, column-equilibrated
-design of as many random usable pixels as the fit used (the design assembled by ``fit.system``
+design of as many random usable pixels as the fit used (the design assembled by ``brdfrig.fit.system``
 outside the timing: the peer's time is the dense solve alone, all channels, one BLAS thread as in
 the fit); ``ratio`` = fit median / peer median.  The machine is shared: the load averages before
 and after are printed.
@@ -32,19 +32,19 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from fit.bench import FULL, QUICK, TRUTH, _resample, rotate_environment
-from fit.fitter import DEFAULT_MAX_THETA_DEG, STAGES, fit_brdf
-from fit.groundtruth import render_groundtruth
-from fit.scene import Environment, Scene
-from fit.shproject import project_environment
-from fit.system import ModelSpec, design_block
+from brdfrig.evaluate.bench import FULL, QUICK, TRUTH, _resample, rotate_environment
+from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG, STAGES, fit_brdf
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.shproject import project_environment
+from brdfrig.fit.system import ModelSpec, design_block
 
 TARGETS_S = {1: 1.0, 12: 5.0}
 """Issue 4's targets (seconds) for the 512x512, l = p = 8 headline, by number of scenes."""
 
 
 def headline_scenes(fit_env: Environment, sphere, sphere_size: int, headline_size: int, counts=(1, 12)) -> dict[int, list[Scene]]:
-    """The headline cases of :func:`fit.bench.run_benchmark`: scene count -> scenes.
+    """The headline cases of :func:`brdfrig.evaluate.bench.run_benchmark`: scene count -> scenes.
 
     ``sphere``: ``size -> (normals, weights)``; the ground truth is rendered at ``sphere_size`` and
     resampled to ``headline_size``, as the benchmark does.
@@ -111,7 +111,7 @@ def format_tables(results: dict[int, dict], size: int, lmax: int) -> str:
         peer = statistics.median(r["peer"]) if r["peer"] else math.nan
         lines.append(f"{count:>6} {len(t):>4} {statistics.median(t):>9.3f} {min(t):>7.3f} {max(t):>7.3f} {target:>8} "
                      f"{r['rows']:>7} {peer:>7.3f} {statistics.median(t) / peer:>6.2f}")
-    lines += ["", "median seconds per stage (fit.fitter.STAGES):"]
+    lines += ["", "median seconds per stage (brdfrig.fit.fitter.STAGES):"]
     head = f"{'scenes':>6} " + " ".join(f"{s:>15}" for s in STAGES)
     lines += [head, "-" * len(head)]
     for count, r in results.items():
@@ -153,9 +153,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs < 1 or args.peer_runs < 0:
         raise SystemExit("--runs must be >= 1 and --peer-runs >= 0")
 
-    from capture.cmd_bench import DEFAULT_PROBES, MAP_ROWS, _box_downsample, _environment
-    from hdr.exr import read_image
-    from hdr.sphere import sphere_pixels
+    from brdfrig.cli.bench import DEFAULT_PROBES, MAP_ROWS, _box_downsample, _environment
+    from brdfrig.hdr.exr import read_image
+    from brdfrig.hdr.sphere import sphere_pixels
 
     probes = sorted([*DEFAULT_PROBES.glob("*.hdr"), *DEFAULT_PROBES.glob("*.exr")]) if DEFAULT_PROBES.is_dir() else []
     if not probes:

@@ -1,6 +1,6 @@
-"""Benchmark of :func:`hdr.merge.merge_bracket` against OpenCV's ``MergeDebevec`` on the same synthetic data.
+"""Benchmark of :func:`brdfrig.hdr.merge.merge_bracket` against OpenCV's ``MergeDebevec`` on the same synthetic data.
 
-Run as ``python -m hdr.bench_merge [--quick] [--out DIR]``.
+Run as ``python -m benchmarks.bench_merge [--quick] [--out DIR]``.
 
 1. Accuracy: a radiance image over 1e5:1 (log-uniform), shot by a simulated
    sensor (Poisson shot noise, Gaussian read noise, clipping, 16-bit
@@ -45,7 +45,7 @@ def synthetic_bracket(h: int, w: int, seed: int = 0) -> tuple[np.ndarray, list[n
 def _methods():
     import cv2
 
-    from hdr.merge import merge_bracket
+    from brdfrig.hdr.merge import merge_bracket
 
     def ours(frames, weighting, clip_radius=0):
         with warnings.catch_warnings():
@@ -105,7 +105,7 @@ def throughput(h: int, w: int, repeats: int) -> dict:
     """Median wall time of brdfrig's merge and OpenCV's MergeDebevec on an (h, w) 7-frame uint16 bracket."""
     from tqdm import tqdm
 
-    from hdr.merge import merge_bracket
+    from brdfrig.hdr.merge import merge_bracket
 
     tile_h, tile_w = h // 4, w // 4
     _, tile = synthetic_bracket(tile_h, tile_w, seed=1)
@@ -137,7 +137,7 @@ def throughput(h: int, w: int, repeats: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hdr.bench_merge", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_merge", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="small images, 1 timed run (smoke test)")
     parser.add_argument("--out", type=Path, default=Path("bench-out"), help="directory for bench_merge.png")

@@ -1,14 +1,14 @@
-"""Benchmark: ``auto`` exposure plan vs a fixed 9-stop bracket (``python -m capture.bench_plan``).
+"""Benchmark: ``auto`` exposure plan vs a fixed 9-stop bracket (``python -m benchmarks.bench_plan``).
 
-On the simulated bench (``rig.sim_bench``, photographed by ``rig.sim_camera``
+On the simulated bench (``brdfrig.sim.bench``, photographed by ``brdfrig.sim.camera``
 with the sensor of ``config/sim-bench.toml``), two scenes of interest:
 
 * low contrast: the matte sample sphere under the room light (metering mask = its disc);
 * high contrast: the chrome probe, which reflects the sun and the windows (mask = its disc).
 
-For each, the ``auto`` plan (metering shots, then :func:`capture.plan.auto_bracket`)
+For each, the ``auto`` plan (metering shots, then :func:`brdfrig.session.plan.auto_bracket`)
 and a fixed bracket of 9 exposures one stop apart centred on the metering time
-are shot, merged exactly as the pipeline does (:func:`capture.pipeline.merge_files`)
+are shot, merged exactly as the pipeline does (:func:`brdfrig.session.pipeline.merge_files`)
 and compared with the simulator's true radiance over the disc: relative RMS
 error, median absolute relative error, and the fraction of pixels with no
 usable exposure.  Medians over ``--repeats`` noise draws.  Metering frames are
@@ -34,13 +34,13 @@ def _disc(shape, circle) -> np.ndarray:
 
 def compare_plans(scale: float = 0.5, repeats: int = 3, seed: int = 0) -> list[dict]:
     """Shoot, merge and score both plans on both scenes; one dict per (scene, plan) with medians over repeats."""
-    from capture.cmd_demo import DEMO_CONFIG
-    from capture.config import load_session_config
-    from capture.pipeline import merge_files
-    from capture.plan import meter_bracket
-    from hdr.raw import read_frame
-    from rig.sim_bench import SimBench
-    from rig.sim_camera import SimulatedCamera
+    from brdfrig.cli.demo import DEMO_CONFIG
+    from brdfrig.session.config import load_session_config
+    from brdfrig.session.pipeline import merge_files
+    from brdfrig.session.plan import meter_bracket
+    from brdfrig.hdr.raw import read_frame
+    from brdfrig.sim.bench import SimBench
+    from brdfrig.sim.camera import SimulatedCamera
 
     config = load_session_config(DEMO_CONFIG)
     cam_cfg, plan = config.rig.camera, config.plan
@@ -91,7 +91,7 @@ def compare_plans(scale: float = 0.5, repeats: int = 3, seed: int = 0) -> list[d
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m capture.bench_plan", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_plan", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="noise draws per case (medians reported)")
     parser.add_argument("--scale", type=float, default=0.5, help="simulated frame scale (1 = 640 x 240)")

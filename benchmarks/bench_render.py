@@ -1,10 +1,10 @@
 """Benchmark: the simulated bench's node-grid sample rendering against per-pixel quadrature.
 
-Run as ``python -m rig.bench_render [--scale S] [--env-height H] [--repeats N]``.
+Run as ``python -m benchmarks.bench_render [--scale S] [--env-height H] [--repeats N]``.
 
 Both render the same sample spheres under the same lat-long environment with
-:func:`fit.groundtruth.render_groundtruth`; the peer evaluates it at every
-pixel of the sphere, :meth:`rig.sim_bench.SimBench.render_sample` at a
+:func:`brdfrig.fit.groundtruth.render_groundtruth`; the peer evaluates it at every
+pixel of the sphere, :meth:`brdfrig.sim.bench.SimBench.render_sample` at a
 ``render_nodes`` x ``render_nodes`` grid and interpolates (cubic).  Printed:
 median wall time of ``repeats`` runs after a warm-up, the ratio, and the
 relative RMS difference of the two images (pixels within 5% of the radius
@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from fit.groundtruth import render_groundtruth
-from rig.sim_bench import SimBench
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.sim.bench import SimBench
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -35,7 +35,7 @@ def _median_time(fn, repeats: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m rig.bench_render", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_render", description=__doc__.split("\n\n")[0])
     parser.add_argument("--scale", type=float, default=1.0, help="bench frame scale (1 = 640 x 240, radius 90)")
     parser.add_argument("--env-height", type=int, default=64, help="environment rows (columns = 2x)")
     parser.add_argument("--repeats", type=int, default=3)

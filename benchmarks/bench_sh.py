@@ -1,6 +1,6 @@
 """Benchmark of the SH core against peer libraries doing the same work in the same run.
 
-Run ``python -m fit.bench_sh`` (``--quick`` for a smaller, faster run).  Prints one
+Run ``python -m benchmarks.bench_sh`` (``--quick`` for a smaller, faster run).  Prints one
 row per (task, implementation): median wall time over repeats after one warm-up
 call (numba compilation and cached tables excluded for everyone), and the ratio
 of brdfrig's time to that peer's.  Peers that only work one item per call are
@@ -59,7 +59,7 @@ def bench_eval(n: int, lmax: int, repeats: int, rng) -> list[Timing]:
     import sphericart
     from scipy.special import sph_harm_y_all
 
-    from fit.sh import sh_eval
+    from brdfrig.fit.sh import sh_eval
 
     task = f"SH eval l<={lmax}, {n:.0e} dirs"
     dirs = _random_dirs(n, rng)
@@ -78,7 +78,7 @@ def bench_eval(n: int, lmax: int, repeats: int, rng) -> list[Timing]:
             pyshtools.expand.spharm(lmax, t, p, kind="real", degrees=False, normalization="ortho", csphase=1)
 
     return [
-        Timing(task, "brdfrig fit.sh.sh_eval", median_time(lambda: sh_eval(dirs, lmax), repeats), ours=True),
+        Timing(task, "brdfrig.fit.sh.sh_eval", median_time(lambda: sh_eval(dirs, lmax), repeats), ours=True),
         Timing(task, "sphericart (direct)", median_time(lambda: calc.compute(dirs), repeats)),
         Timing(task, "scipy sph_harm_y_all", median_time(scipy_all, max(1, repeats // 2), n / sub.shape[0]),
                f"complex; timed on {sub.shape[0]:.0e} dirs, scaled"),
@@ -128,13 +128,13 @@ def _spherical_rotation_peer(task: str, lmax: int, channels: int, k: int, rng) -
 def bench_rotation(k: int, lmax: int, repeats: int, rng) -> list[Timing]:
     from scipy.spatial.transform import Rotation
 
-    from fit.rotation import rotate_coeffs
+    from brdfrig.fit.rotation import rotate_coeffs
 
     task = f"rotate l<={lmax} coeffs, {k:.0e} rotations"
     rotations = Rotation.random(k, random_state=1).as_matrix()
     coeffs = rng.normal(size=((lmax + 1) ** 2, 1))
     return [
-        Timing(task, "brdfrig fit.rotation.rotate_coeffs", median_time(lambda: rotate_coeffs(coeffs, rotations), repeats),
+        Timing(task, "brdfrig.fit.rotation.rotate_coeffs", median_time(lambda: rotate_coeffs(coeffs, rotations), repeats),
                "1 channel", ours=True),
         _pysh_rotation_peer(task, lmax, 1, k, rng),
         _spherical_rotation_peer(task, lmax, 1, k, rng),
@@ -142,13 +142,13 @@ def bench_rotation(k: int, lmax: int, repeats: int, rng) -> list[Timing]:
 
 
 def bench_local(k: int, lmax: int, channels: int, repeats: int, rng) -> list[Timing]:
-    from fit.rotation import local_lighting
+    from brdfrig.fit.rotation import local_lighting
 
     task = f"local_lighting l<={lmax}, {channels} ch, {k:.0e} normals"
     normals = _random_dirs(k, rng)
     coeffs = rng.normal(size=((lmax + 1) ** 2, channels))
     return [
-        Timing(task, "brdfrig fit.rotation.local_lighting", median_time(lambda: local_lighting(coeffs, normals), repeats),
+        Timing(task, "brdfrig.fit.rotation.local_lighting", median_time(lambda: local_lighting(coeffs, normals), repeats),
                ours=True),
         _pysh_rotation_peer(task, lmax, channels, k, rng),
         _spherical_rotation_peer(task, lmax, channels, k, rng),
@@ -158,8 +158,8 @@ def bench_local(k: int, lmax: int, channels: int, repeats: int, rng) -> list[Tim
 def bench_projection(height: int, lmax: int, repeats: int, rng) -> list[Timing]:
     import pyshtools
 
-    from fit.sh import sh_eval
-    from fit.shproject import project_latlong
+    from brdfrig.fit.sh import sh_eval
+    from brdfrig.fit.shproject import project_latlong
 
     width = 2 * height
     task = f"project {width}x{height} map (3 ch) to l<={lmax}"
@@ -183,7 +183,7 @@ def bench_projection(height: int, lmax: int, repeats: int, rng) -> list[Timing]:
         return [pyshtools.expand.SHExpandDH(g, norm=4, sampling=2, lmax_calc=lmax) for g in grid]
 
     return [
-        Timing(task, "brdfrig fit.shproject.project_latlong", median_time(lambda: project_latlong(image, lmax), repeats),
+        Timing(task, "brdfrig.fit.shproject.project_latlong", median_time(lambda: project_latlong(image, lmax), repeats),
                "separable: FFT + Fejer rule", ours=True),
         Timing(task, "pyshtools SHExpandDH", median_time(dh, repeats), "3 calls; Driscoll-Healy grid of the same size"),
         Timing(task, "sphericart dense quadrature", median_time(dense, max(1, repeats // 2)),
@@ -212,7 +212,7 @@ def format_table(rows: list[Timing]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fit.bench_sh", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_sh", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="10x fewer directions and rotations (smoke run)")
     parser.add_argument("--repeats", type=int, default=5, help="timed calls per measurement (median)")
     args = parser.parse_args(argv)

@@ -9,8 +9,8 @@ import pytest
 from scipy import integrate
 from scipy.spatial.transform import Rotation
 
-from fit.analytic import GGX, BlinnPhong, Lambertian, OrenNayar, ggx_ndf, smith_lambda
-from fit.brdf import brdf_from_dict
+from brdfrig.fit.analytic import GGX, BlinnPhong, Lambertian, OrenNayar, ggx_ndf, smith_lambda
+from brdfrig.fit.brdf import brdf_from_dict
 
 
 def _unit(rng: np.random.Generator, n: int, upper: bool = False) -> np.ndarray:

@@ -13,9 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from capture.cmd_bench import CachedGroundTruth
-from fit.analytic import GGX
-from fit.bench import (
+from brdfrig.cli.bench import CachedGroundTruth
+from brdfrig.fit.analytic import GGX
+from brdfrig.evaluate.bench import (
     FAST_S,
     FULL,
     MODELS,
@@ -29,15 +29,15 @@ from fit.bench import (
     rows_to_json,
     time_runs,
 )
-from fit.groundtruth import render_groundtruth
-from fit.scene import Environment
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.scene import Environment
 
 
 def test_bench_quick_cli(tmp_path):
     out = tmp_path / "bench"
     t0 = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "capture", "bench", "--quick", "--no-progress", "--out", str(out)],
+        [sys.executable, "-m", "brdfrig", "bench", "--quick", "--no-progress", "--out", str(out)],
         capture_output=True, text=True, timeout=300,
     )
     wall = time.perf_counter() - t0
@@ -174,6 +174,6 @@ def test_groundtruth_cache(tmp_path):
 
 @pytest.mark.parametrize("budget", ["0", "-3", "nan"])
 def test_bad_budget(budget, tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "capture", "bench", "--quick", "--budget", budget, "--out", str(tmp_path)],
+    proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--quick", "--budget", budget, "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "--budget" in proc.stderr and not list(tmp_path.iterdir())

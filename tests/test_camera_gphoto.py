@@ -7,9 +7,9 @@ from types import SimpleNamespace
 import gphoto2
 import pytest
 
-from rig.camera import Camera
-from rig.errors import DeviceBusy, DeviceDisconnected, DeviceNotFound
-from rig.gphoto import GphotoCamera, parse_choice
+from brdfrig.rig.camera import Camera
+from brdfrig.rig.errors import DeviceBusy, DeviceDisconnected, DeviceNotFound
+from brdfrig.rig.gphoto import GphotoCamera, parse_choice
 
 
 class FakeWidget:

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from rig.errors import DeviceTimeout
-from rig.watch_folder import WatchFolderCamera
+from brdfrig.rig.errors import DeviceTimeout
+from brdfrig.rig.watch_folder import WatchFolderCamera
 
 
 def slow_writer(path, chunks, pause_s):

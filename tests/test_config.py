@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from capture.config import ConfigError, load_fit_preset, load_session_config, stored_session_config
+from brdfrig.session.config import ConfigError, load_fit_preset, load_session_config, stored_session_config
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "src" / "brdfrig" / "config"
 
 BASE = """
 [session]
@@ -51,7 +51,7 @@ def test_shipped_configs_load():
 
 
 def test_sim_bench_has_enough_scenes_for_the_full_model():
-    from fit.identifiability import scenes_needed
+    from brdfrig.fit.identifiability import scenes_needed
 
     cfg = load_session_config(CONFIG_DIR / "sim-bench.toml")
     assert cfg.rig.carries == "rig"
@@ -130,8 +130,8 @@ def test_separate_rig_and_fit_files_replace_the_plan_tables(tmp_path):
 
 
 def test_fit_choices_match_the_fitter():
-    from capture.config import FIT_MODELS, FIT_SOLVERS
-    from fit import fitter
+    from brdfrig.session.config import FIT_MODELS, FIT_SOLVERS
+    from brdfrig.fit import fitter
 
     assert set(FIT_MODELS) == set(fitter.MODELS)
     assert set(FIT_SOLVERS) == set(getattr(fitter, "SOLVERS", FIT_SOLVERS))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hdr.detect import SphereNotFoundError, detect_sphere
+from brdfrig.hdr.detect import SphereNotFoundError, detect_sphere
 
 BACKGROUND = {"dark": 0.01, "bright": 5.0, "stand": 0.05, "highlight": 0.02}
 
@@ -124,8 +124,8 @@ def ball_circle(radius, margin, seed):
 @pytest.fixture
 def probe_maps(real_probes):
     """Real probes as radiance functions of direction (bilinear lookup in the lat-long map)."""
-    from hdr.envmap import sample_latlong
-    from hdr.exr import read_image
+    from brdfrig.hdr.envmap import sample_latlong
+    from brdfrig.hdr.exr import read_image
 
     maps = {p.stem: read_image(p) for p in real_probes}
     return {name: (lambda d, m=m: sample_latlong(m, d)) for name, m in maps.items()}
@@ -142,7 +142,7 @@ def test_mirror_ball_of_real_probes_within_quarter_pixel(probe_maps, radius):
 
 @pytest.mark.parametrize("radius", [40, 60, 150])
 def test_mirror_ball_of_procedural_room_within_quarter_pixel(radius):
-    from rig.sim_bench import procedural_environment
+    from brdfrig.sim.bench import procedural_environment
 
     size, circle = ball_circle(radius, 4, seed=radius)
     found = detect_sphere(mirror_ball(size, size, circle, procedural_environment, background=0.02))
@@ -165,7 +165,7 @@ def test_faint_speckles_outside_a_mirror_ball_are_not_its_rim(probe_maps):
 def test_mirror_ball_as_rendered_by_the_fit_cli_test(probe_maps):
     """``tests/test_fit_cli.py``'s probe image: every pixel the disc touches is filled whole with the radiance
     at its centre, so the outline is only defined to about half a pixel there (tolerance 0.5 px)."""
-    from hdr.envmap import mirrorball_directions
+    from brdfrig.hdr.envmap import mirrorball_directions
 
     circle = (70.0, 70.0, 60.0)
     dirs, _, inside = mirrorball_directions((140, 140), circle)

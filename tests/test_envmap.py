@@ -1,4 +1,4 @@
-"""Environment-image geometry (hdr.envmap): directions, solid angles, inverse maps, sampling."""
+"""Environment-image geometry (brdfrig.hdr.envmap): directions, solid angles, inverse maps, sampling."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from hdr.envmap import (
+from brdfrig.hdr.envmap import (
     angular_directions,
     latlong_directions,
     latlong_pixels,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hdr.exr import read_exr, read_image, write_exr
+from brdfrig.hdr.exr import read_exr, read_image, write_exr
 
 
 def test_round_trip_with_extra_channels_and_attributes(tmp_path):
@@ -86,7 +86,7 @@ def test_truncated_and_corrupt_files_are_clear_errors(tmp_path, suffix):
 def test_nan_pixels_are_rejected_naming_the_file(tmp_path):
     img = np.ones((4, 4, 3), np.float32)
     img[2, 1, 0] = np.nan
-    write_exr(tmp_path / "nan.exr", img)
+    write_exr(tmp_path / "nan.exr", img, allow_nonfinite=True)
     with pytest.raises(ValueError, match=r"nan\.exr.*NaN/inf.*row 2, col 1"):
         read_image(tmp_path / "nan.exr")
     assert np.isnan(read_image(tmp_path / "nan.exr", allow_nonfinite=True)[2, 1, 0])

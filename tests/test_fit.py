@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fit.analytic import GGX, Lambertian
-from fit.fitter import fit_brdf
-from fit.scene import Environment, Scene
-from hdr.envmap import latlong_directions
+from brdfrig.fit.analytic import GGX, Lambertian
+from brdfrig.fit.fitter import fit_brdf
+from brdfrig.fit.scene import Environment, Scene
+from brdfrig.hdr.envmap import latlong_directions
 from test_fit_scenes import ALBEDO, GGX_MATERIAL, make_scenes, probes, relight_error, rotations, sphere  # noqa: F401
 
 
@@ -93,7 +93,7 @@ def test_one_scene_full_plus_prior_relights_no_worse_than_its_prior(probes, nois
     # (GCV alone picked lambda ~ 1e-12 here and relit at ~1e5 relative error).  Oracle: the
     # ground-truth renderer; reference: the prior itself written on the same full basis
     # (project_to_full), the best the full model at this band limit can do with the prior alone.
-    from fit.models import make_linear_brdf, project_to_full
+    from brdfrig.fit.models import make_linear_brdf, project_to_full
 
     fit_env, test_env = probes
     normals, weights = sphere(48)
@@ -218,13 +218,13 @@ def test_bad_input_is_a_clear_error(probes):
 def test_one_scene_full_fit_streams_reduced_with_the_same_prediction(probes, monkeypatch):
     """One scene leaves ``full`` rank-deficient: the stream is folded in a basis of the design's row
     space (fewer QR columns); fitted radiance, rank and unknowns match the unreduced stream."""
-    import fit.fitter
+    import brdfrig.fit.fitter
 
     fit_env, _ = probes
     normals, weights = sphere(96)
     scenes = make_scenes(GGX(**GGX_MATERIAL), [fit_env], normals, weights)
     reduced = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
-    monkeypatch.setattr(fit.fitter, "REDUCE_MAX_FRACTION", -1.0)  # never reduce
+    monkeypatch.setattr(brdfrig.fit.fitter, "REDUCE_MAX_FRACTION", -1.0)  # never reduce
     plain = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
     red, ref = reduced.report["candidates"]["full"], plain.report["candidates"]["full"]
     print(f"reduced stream: {red['reduced_stream']}; rank {red['rank']} of {red['unknowns']}")
@@ -237,8 +237,8 @@ def test_one_scene_full_fit_streams_reduced_with_the_same_prediction(probes, mon
     # and the same (minimum-norm) unknowns
     np.testing.assert_allclose(reduced.brdf.x, plain.brdf.x, rtol=0, atol=1e-6 * np.abs(plain.brdf.x).max())
     # a later block outside the basis makes the stream start again unreduced
-    monkeypatch.setattr(fit.fitter, "REDUCE_MAX_FRACTION", 0.75)
-    monkeypatch.setattr(fit.fitter, "REDUCE_OUTSIDE_RTOL", -1.0)
+    monkeypatch.setattr(brdfrig.fit.fitter, "REDUCE_MAX_FRACTION", 0.75)
+    monkeypatch.setattr(brdfrig.fit.fitter, "REDUCE_OUTSIDE_RTOL", -1.0)
     fallback = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
     assert fallback.report["candidates"]["full"]["reduced_stream"] is None
     np.testing.assert_allclose(fallback.brdf.x, plain.brdf.x, rtol=1e-12, atol=0)
@@ -266,7 +266,7 @@ def _previous_rows(local, y_out, light_col, out_col, out):
 
 def _previous_probe(qr):
     """``probe_solution`` before the speed work: the damped normal equations by a general (LU) solve."""
-    from fit.solvers import PROBE_DAMPING
+    from brdfrig.fit.solvers import PROBE_DAMPING
 
     r, z = qr.r, qr.z
     d = np.linalg.norm(r, axis=1)
@@ -282,9 +282,9 @@ def test_restructured_stream_predicts_like_the_previous_path(probes, monkeypatch
     """The speed work (LAPACK tpqrt updates, numba design kernel, Cholesky probe) changes rounding only:
     with the previous implementations patched back in, the same pixels are used and the joint fit
     predicts the same radiance to 1e-9 (one scene: reduced stream; six scenes: full rank)."""
-    import fit.fitter
-    import fit.solvers
-    import fit.system
+    import brdfrig.fit.fitter
+    import brdfrig.fit.solvers
+    import brdfrig.fit.system
 
     fit_env, test_env = probes
     truth = GGX(**GGX_MATERIAL)
@@ -295,9 +295,9 @@ def test_restructured_stream_predicts_like_the_previous_path(probes, monkeypatch
         "six scenes, l=p=5": (make_scenes(truth, rotations(fit_env, 6), six_n, six_w), 5, six_n),
     }
     new = {k: fit_brdf(s, model="full", lmax=l, pmax=l, progress=False) for k, (s, l, _) in cases.items()}
-    monkeypatch.setattr(fit.solvers.StreamedQR, "add", _previous_add)
-    monkeypatch.setattr(fit.system, "_full_rows", _previous_rows)
-    monkeypatch.setattr(fit.fitter, "probe_solution", _previous_probe)
+    monkeypatch.setattr(brdfrig.fit.solvers.StreamedQR, "add", _previous_add)
+    monkeypatch.setattr(brdfrig.fit.system, "_full_rows", _previous_rows)
+    monkeypatch.setattr(brdfrig.fit.fitter, "probe_solution", _previous_probe)
     for name, (scenes, lmax, normals) in cases.items():
         old = fit_brdf(scenes, model="full", lmax=lmax, pmax=lmax, progress=False)
         a, b = new[name].report["candidates"]["full"], old.report["candidates"]["full"]
@@ -319,7 +319,7 @@ def test_gather_matches_numpy_masks(probes):
     negative weights and normals beyond the limb margin."""
     import math
 
-    from fit.fitter import DEFAULT_MAX_THETA_DEG, _gather
+    from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG, _gather
 
     fit_env, _ = probes
     rng = np.random.default_rng(4)
@@ -363,7 +363,7 @@ def test_gather_matches_numpy_masks(probes):
 def test_full_plus_prior_warns_on_the_regularised_condition_number_only(probes):
     """One scene leaves ``full`` singular (data condition number inf): the plain joint fit warns, the
     Tikhonov fit toward the prior reports the finite condition number of the system it solved and does not."""
-    from fit.fitter import COND_WARN, PRIOR_LAM_MIN
+    from brdfrig.fit.fitter import COND_WARN, PRIOR_LAM_MIN
 
     fit_env, _ = probes
     normals, weights = sphere(48)

@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from capture.cli import main
-from fit.analytic import Lambertian
-from fit.brdffile import load_brdf
-from fit.groundtruth import render_groundtruth
-from hdr.exr import read_image, write_exr
-from hdr.sphere import sphere_pixels
+from brdfrig.cli.main import main
+from brdfrig.fit.analytic import Lambertian
+from brdfrig.fit.brdffile import load_brdf
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.hdr.exr import read_image, write_exr
+from brdfrig.hdr.sphere import sphere_pixels
 from test_fit_scenes import ALBEDO, probe_environment
 
 SIZE = 64
@@ -96,13 +96,13 @@ def test_bad_inputs_are_clear_errors_without_output(files, capsys):
     _bad(d, ["sphere.exr", "--circle", "40,40"], capsys, "--circle")
     nan = img.copy()
     nan[30, 30] = np.nan
-    write_exr(d / "nan.exr", nan)
+    write_exr(d / "nan.exr", nan, allow_nonfinite=True)
     _bad(d, ["nan.exr", "--circle", "40,40,30"], capsys, "nan.exr")
 
 
 def test_fit_from_a_mirror_ball_probe(files):
     """--probe-scene: the lighting comes from a mirror-ball image (rendered here from the lat-long map)."""
-    from hdr.envmap import mirrorball_directions, sample_latlong
+    from brdfrig.hdr.envmap import mirrorball_directions, sample_latlong
 
     d, _ = files
     grace = read_image(d / "grace.exr")

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from fit.brdffile import FORMAT_VERSION, load_brdf, save_brdf
-from fit.models import make_linear_brdf
-from fit.system import ModelSpec
+from brdfrig.fit.brdffile import FORMAT_VERSION, load_brdf, save_brdf
+from brdfrig.fit.models import make_linear_brdf
+from brdfrig.fit.system import ModelSpec
 
 
 def _random_model(kind: str, seed: int = 0):
@@ -36,10 +36,10 @@ def test_round_trip_preserves_the_model_exactly(tmp_path, kind):
 
 
 def test_microfacet_model_round_trips_through_the_registry(tmp_path):
-    from fit.analytic import GGX
-    from fit.microfacet import MicrofacetBRDF
-    from fit.models import DiffuseBRDF
-    from fit.system import ModelSpec
+    from brdfrig.fit.analytic import GGX
+    from brdfrig.fit.microfacet import MicrofacetBRDF
+    from brdfrig.fit.models import DiffuseBRDF
+    from brdfrig.fit.system import ModelSpec
 
     analytic = GGX(alpha=[0.2, 0.3, 0.4], f0=[0.04, 0.05, 0.06], diffuse=[0.5, 0.4, 0.3], f90=1.0, diffuse_sigma=[0.0, 0.2, 0.4])
     series = DiffuseBRDF(ModelSpec("diffuse", 2, bands=(1, 2)), np.array([[0.01, 0.02, 0.03], [-0.01, 0.0, 0.01]]))
@@ -82,7 +82,7 @@ def test_other_version_and_corrupt_files_are_clear_errors(tmp_path):
 
 
 def test_failed_write_leaves_nothing(tmp_path):
-    # Arbitrary report objects are written as their text (fit.brdffile.jsonable); force the failure
+    # Arbitrary report objects are written as their text (brdfrig.fit.brdffile.jsonable); force the failure
     # at the final rename instead: the target is a directory.
     (tmp_path / "x.json").mkdir()
     with pytest.raises(OSError):
@@ -92,17 +92,17 @@ def test_failed_write_leaves_nothing(tmp_path):
 
 
 def test_registry_reads_analytic_models_without_a_prior_import():
-    # A fresh interpreter that imports only fit.brdf: the registry must import fit.analytic itself.
+    # A fresh interpreter that imports only brdfrig.fit.brdf: the registry must import brdfrig.fit.analytic itself.
     import subprocess
     import sys
 
-    from fit.analytic import GGX, BlinnPhong, Lambertian
+    from brdfrig.fit.analytic import GGX, BlinnPhong, Lambertian
 
     cases = [Lambertian([0.5, 0.4, 0.3]), BlinnPhong(diffuse=[0.3] * 3, specular=[0.2] * 3, exponent=[20.0] * 3),
              GGX(alpha=0.3, f0=[0.04] * 3, diffuse=[0.5, 0.4, 0.3])]
     script = (
         "import json, sys, numpy as np\n"
-        "from fit.brdf import brdf_from_dict\n"
+        "from brdfrig.fit.brdf import brdf_from_dict\n"
         "out = []\n"
         "for d in json.loads(sys.stdin.read()):\n"
         "    b = brdf_from_dict(d)\n"

@@ -1,7 +1,7 @@
 """Scenes for the fitter tests (real probes, small spheres, ground truth) and checks of the linear models' forward model.
 
 Helpers are imported by the other ``test_fit*`` modules.  Oracles: the
-brute-force renderer ``fit.groundtruth.render_groundtruth`` and the
+brute-force renderer ``brdfrig.fit.groundtruth.render_groundtruth`` and the
 Ramamoorthi-Hanrahan irradiance coefficients ``A_l`` (MATH.md).
 """
 
@@ -12,15 +12,15 @@ import math
 import numpy as np
 import pytest
 
-from fit.analytic import GGX, Lambertian
-from fit.bench import rotate_environment
-from fit.groundtruth import render_groundtruth
-from fit.models import DiffuseBRDF, FullBRDF, project_to_full
-from fit.scene import Environment, Scene
-from fit.system import ModelSpec
-from hdr.envmap import latlong_directions
-from hdr.exr import read_image
-from hdr.sphere import sphere_pixels
+from brdfrig.fit.analytic import GGX, Lambertian
+from brdfrig.evaluate.bench import rotate_environment
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.models import DiffuseBRDF, FullBRDF, project_to_full
+from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.system import ModelSpec
+from brdfrig.hdr.envmap import latlong_directions
+from brdfrig.hdr.exr import read_image
+from brdfrig.hdr.sphere import sphere_pixels
 
 GGX_MATERIAL = dict(alpha=0.3, f0=[0.04, 0.04, 0.04], diffuse=[0.5, 0.4, 0.3])
 ALBEDO = np.array([0.6, 0.5, 0.3])

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from fit.analytic import GGX, BlinnPhong, Lambertian
-from fit.groundtruth import render_groundtruth
-from fit.scene import Environment
+from brdfrig.fit.analytic import GGX, BlinnPhong, Lambertian
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.scene import Environment
 
 
 def _frame(n: np.ndarray) -> np.ndarray:
@@ -95,10 +95,10 @@ def test_away_facing_and_unseen_samples_and_channels():
 
 def test_real_probe_lambertian_matches_sh_irradiance(real_probes):
     # Independent peer: A's SH projection + the Ramamoorthi-Hanrahan A_l of the clamped cosine.
-    from fit.sh import sh_eval
-    from fit.shproject import project_environment
-    from hdr.envmap import latlong_directions
-    from hdr.exr import read_image
+    from brdfrig.fit.sh import sh_eval
+    from brdfrig.fit.shproject import project_environment
+    from brdfrig.hdr.envmap import latlong_directions
+    from brdfrig.hdr.exr import read_image
 
     img = np.asarray(read_image(real_probes[0]), dtype=np.float64)
     h, w = img.shape[0] // 4, img.shape[1] // 4
@@ -121,7 +121,7 @@ def test_real_probe_lambertian_matches_sh_irradiance(real_probes):
 
 
 def test_ggx_basis_recombines_to_the_ggx_render():
-    from fit.groundtruth import render_ggx_basis
+    from brdfrig.fit.groundtruth import render_ggx_basis
 
     dirs, omega = _hemisphere_rule(np.array([0.0, 0.0, 1.0]), n_mu=12, n_phi=24)
     rad = 1.0 + np.abs(dirs) @ np.array([[1.0, 0.2], [0.5, 2.0], [0.1, 0.3]])

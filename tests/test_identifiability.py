@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from fit.identifiability import analyse_lighting, scenes_needed
-from fit.scene import Environment
-from fit.shproject import project_environment
-from fit.solvers import StreamedQR, solve
-from fit.system import ModelSpec, design_block
-from hdr.envmap import latlong_directions
+from brdfrig.fit.identifiability import analyse_lighting, scenes_needed
+from brdfrig.fit.scene import Environment
+from brdfrig.fit.shproject import project_environment
+from brdfrig.fit.solvers import StreamedQR, solve
+from brdfrig.fit.system import ModelSpec, design_block
+from brdfrig.hdr.envmap import latlong_directions
 from test_fit_scenes import probe_environment, rotations, sphere
 
 

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from hdr.merge import (
+from brdfrig.hdr.merge import (
     FLAG_DARK,
     FLAG_SATURATED,
     SaturationWarning,
@@ -207,8 +207,8 @@ def test_clipped_neighbourhood_covers_every_channel_within_the_radius():
 
 def _decode_mosaic(path, rgb):
     """Write the RGGB mosaic of ``rgb`` (fraction of full scale, clipped at 1) as a 14-bit DNG and decode it."""
-    from hdr.dng import write_dng
-    from hdr.raw import decode_raw
+    from brdfrig.hdr.dng import write_dng
+    from brdfrig.hdr.raw import decode_raw
 
     black, white = 256, 16383
     raw = black + np.clip(rgb, 0, 1) * (white - black)
@@ -255,8 +255,8 @@ def test_clipped_small_light_merges_to_the_true_radiance_with_clip_radius_1(tmp_
 
 
 def test_merge_command_clip_radius_option(tmp_path, capsys):
-    from capture.cli import main
-    from hdr.exr import read_exr
+    from brdfrig.cli.main import main
+    from brdfrig.hdr.exr import read_exr
 
     paths, times, _, truth = small_lights_bracket(tmp_path)
     args = ["merge", *map(str, paths), "--times", ",".join(map(str, times))]

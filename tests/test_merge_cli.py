@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from capture.cli import main
-from hdr.dng import write_dng
-from hdr.exr import read_exr
+from brdfrig.cli.main import main
+from brdfrig.hdr.dng import write_dng
+from brdfrig.hdr.exr import read_exr
 
 BLACK, WHITE = 256, 16383
 TIMES = [1 / 500, 1 / 125, 1 / 30, 1 / 8]  # nominal, as cameras label them

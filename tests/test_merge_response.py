@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hdr.merge import merge_bracket
-from hdr.response import linearize, recover_response
+from brdfrig.hdr.merge import merge_bracket
+from brdfrig.hdr.response import linearize, recover_response
 
 TIMES = 2.0 ** np.arange(-3, 4)  # 7 exposures, 1 stop apart
 

@@ -12,10 +12,10 @@ import warnings
 import numpy as np
 import pytest
 
-from hdr.merge import ExposureTimeWarning, estimate_times, merge_bracket
-from hdr.raw import decode_raw
-from rig.sim_bench import SimBench
-from rig.sim_camera import SimulatedCamera
+from brdfrig.hdr.merge import ExposureTimeWarning, estimate_times, merge_bracket
+from brdfrig.hdr.raw import decode_raw
+from brdfrig.sim.bench import SimBench
+from brdfrig.sim.camera import SimulatedCamera
 
 FULL_WELL, READ_NOISE = 4000.0, 4.0
 TIMES = np.array([4.0, 0.5, 1 / 16, 1 / 128, 1 / 1024, 1 / 8192])  # what the simulated shutter does

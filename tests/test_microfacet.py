@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from fit.analytic import GGX, Lambertian
-from fit.brdf import FittedBRDF, brdf_from_dict
-from fit.groundtruth import render_groundtruth
-from fit.microfacet import MicrofacetBRDF, coarsen_environment, fit_microfacet
-from fit.models import DiffuseBRDF
-from fit.scene import Environment, Scene
-from fit.system import ModelSpec
+from brdfrig.fit.analytic import GGX, Lambertian
+from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.microfacet import MicrofacetBRDF, coarsen_environment, fit_microfacet
+from brdfrig.fit.models import DiffuseBRDF
+from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.system import ModelSpec
 
 
 def _sphere_normals(size: int, max_radius: float = 0.95) -> np.ndarray:
@@ -26,8 +26,8 @@ def _sphere_normals(size: int, max_radius: float = 0.95) -> np.ndarray:
 
 def _probe_env(path, factor: int) -> Environment:
     """A real lat-long probe box-downsampled by ``factor`` (A's lat-long geometry, B's reader)."""
-    from hdr.envmap import latlong_directions
-    from hdr.exr import read_image
+    from brdfrig.hdr.envmap import latlong_directions
+    from brdfrig.hdr.exr import read_image
 
     img = np.asarray(read_image(path), dtype=np.float64)
     h, w = img.shape[0] // factor, img.shape[1] // factor

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from capture.config import load_session_config
-from capture.pipeline import (
+from brdfrig.session.config import load_session_config
+from brdfrig.session.pipeline import (
     merge_frames,
     open_verified,
     relative_rms,
@@ -16,7 +16,7 @@ from capture.pipeline import (
     scene_lighting,
     sample_scenes,
 )
-from capture.session import run_session, sim_bench
+from brdfrig.session.runner import run_session, sim_bench
 
 PLAN = """
 [rig]
@@ -62,9 +62,9 @@ def session(tmp_path_factory):
 
 def test_probe_lighting_matches_the_simulator(session):
     """A Lambertian sphere lit by the unwrapped probe vs by the simulator's true environment (brute force)."""
-    from fit.analytic import Lambertian
-    from fit.groundtruth import render_groundtruth
-    from hdr.sphere import sphere_pixels
+    from brdfrig.fit.analytic import Lambertian
+    from brdfrig.fit.groundtruth import render_groundtruth
+    from brdfrig.hdr.sphere import sphere_pixels
 
     path, cfg = session
     store, config = open_verified(path)
@@ -106,7 +106,7 @@ def test_refit_reuses_merges_and_never_overwrites_results(session):
     assert a.figure_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     stats = json.loads((first.results_dir / "stats.json").read_text())
     assert stats["samples"]["matte"]["model"] == "diffuse"
-    from fit.brdffile import load_brdf
+    from brdfrig.fit.brdffile import load_brdf
 
     brdf, report = load_brdf(a.brdf_path)
     assert brdf.to_dict() == a.brdf.to_dict()

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from capture.config import session_config_from_dict
-from capture.plan import SATURATION_HEADROOM, auto_bracket, build_plan, describe_plan, electrons_for_snr
+from brdfrig.session.config import session_config_from_dict
+from brdfrig.session.plan import SATURATION_HEADROOM, auto_bracket, build_plan, describe_plan, electrons_for_snr
 
 FW, RN, SNR = 4000.0, 4.0, 20.0
 

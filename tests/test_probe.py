@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fit.shproject import project
-from hdr.envmap import latlong_directions, sample_latlong
-from hdr.probe import (
+from brdfrig.fit.shproject import project
+from brdfrig.hdr.envmap import latlong_directions, sample_latlong
+from brdfrig.hdr.probe import (
     CHROME_IOR,
     albedo_from_patches,
     average_rotations,
@@ -150,7 +150,7 @@ def test_unwrapped_ball_matches_map_band_energies_within_1_percent(env, render):
 
 
 def test_real_probes_unwrap_within_1_percent(real_probes):
-    from hdr.exr import read_image
+    from brdfrig.hdr.exr import read_image
 
     for path in real_probes:
         _check_band_energies(read_image(path).astype(np.float64), 150, splat_ball)
@@ -293,7 +293,7 @@ def test_bad_probe_input_is_a_clear_error():
 
 def test_chrome_ball_detected_in_front_of_a_backdrop(env):
     """A chrome ball (textured reflection, rim squeezing bright windows) in front of a grey backdrop."""
-    from hdr.detect import detect_sphere
+    from brdfrig.hdr.detect import detect_sphere
 
     size, circle = 260, (131.3, 127.6, 110.2)
     ball = render_ball(env, (size, size), circle, reflectance=lambda n: np.full(len(n), 0.7), background=0.3)
@@ -302,8 +302,8 @@ def test_chrome_ball_detected_in_front_of_a_backdrop(env):
 
 
 def test_probe_cli_writes_latlong_with_unseen_mask(env, tmp_path, capsys):
-    from capture.cli import main
-    from hdr.exr import read_exr, write_exr
+    from brdfrig.cli.main import main
+    from brdfrig.hdr.exr import read_exr, write_exr
 
     size, radius = 300, 130
     circle = (151.2, 148.7, radius)
@@ -338,8 +338,8 @@ def test_probe_cli_writes_latlong_with_unseen_mask(env, tmp_path, capsys):
 
 
 def test_probe_cli_no_sphere_and_bad_files(tmp_path, capsys):
-    from capture.cli import main
-    from hdr.exr import write_exr
+    from brdfrig.cli.main import main
+    from brdfrig.hdr.exr import write_exr
 
     flat = tmp_path / "flat.exr"
     write_exr(flat, np.full((120, 160, 3), 0.5, np.float32))

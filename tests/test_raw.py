@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hdr.dng import CFA_PATTERNS, write_dng
-from hdr.raw import Exposure, decode_raw, read_exposure, read_frame
+from brdfrig.hdr.dng import CFA_PATTERNS, write_dng
+from brdfrig.hdr.raw import Exposure, decode_raw, read_exposure, read_frame
 
 WHITE = 16383
 BLACK = (512.0, 520.0, 508.0, 515.0)  # per position of the 2x2 block

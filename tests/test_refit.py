@@ -7,14 +7,14 @@ import subprocess
 import sys
 from pathlib import Path
 
-from capture.config import session_config_from_dict
-from capture.store import FORMAT_VERSION, SessionStore
+from brdfrig.session.config import session_config_from_dict
+from brdfrig.session.store import FORMAT_VERSION, SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def brdfrig(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "capture", *map(str, args)], cwd=ROOT, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "brdfrig", *map(str, args)], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
 
 

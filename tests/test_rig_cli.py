@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from capture.cli import main
+from brdfrig.cli.main import main
 
-SIM_BENCH = Path(__file__).resolve().parents[1] / "config" / "sim-bench.toml"
+SIM_BENCH = Path(__file__).resolve().parents[1] / "src" / "brdfrig" / "config" / "sim-bench.toml"
 
 
 def test_simulated_rig_check_passes(capsys, tmp_path):

@@ -8,10 +8,10 @@ import os
 
 import pytest
 
-from capture import store as store_mod
-from capture.config import session_config_from_dict
-from capture.session import resume_session, run_session
-from capture.store import DiskFullError, SessionStore
+from brdfrig.session import store as store_mod
+from brdfrig.session.config import session_config_from_dict
+from brdfrig.session.runner import resume_session, run_session
+from brdfrig.session.store import DiskFullError, SessionStore
 
 
 class FakeTurntable:

@@ -28,7 +28,7 @@ circle = [30, 10, 5]
 
 
 def brdfrig(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "capture", *map(str, args)], cwd=ROOT, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "brdfrig", *map(str, args)], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
 
 
@@ -115,7 +115,7 @@ def test_ctrl_c_stops_cleanly_and_resume_finishes(tmp_path):
     r = brdfrig("capture", "resume", out, "--no-fit", "--no-progress")
     assert r.returncode == 0, r.stderr
     assert "session complete: " in r.stdout
-    from capture.store import SessionStore
+    from brdfrig.session.store import SessionStore
 
     store = SessionStore.open(out)
     assert store.verify().passed and sum(e.get("kind") == "exposure" for e in store.files.values()) == 8

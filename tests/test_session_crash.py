@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capture.config import load_session_config
-from capture.store import SessionStore
+from brdfrig.session.config import load_session_config
+from brdfrig.session.store import SessionStore
 
 PLAN = """
 [session]
@@ -67,7 +67,7 @@ def _child(plan: str, out: str, resume: bool) -> None:
     os.dup2(devnull, 2)
     code = 1
     try:
-        from capture.session import resume_session, run_session
+        from brdfrig.session.runner import resume_session, run_session
 
         if resume:
             status, _ = resume_session(out, prompt=None, progress=False)
@@ -80,8 +80,8 @@ def _child(plan: str, out: str, resume: bool) -> None:
 
 # Session processes come from a forkserver started clean, not forked from pytest: numba's OpenMP layer
 # raises SIGTERM in a child forked from a process that already ran a parallel kernel (earlier tests do).
-_CHILD_MODULES = ["capture.pipeline", "capture.session", "hdr.dng", "hdr.raw", "rig.grbl_sim",
-                  "rig.sim_camera", "rig.turntable"]
+_CHILD_MODULES = ["brdfrig.session.pipeline", "brdfrig.session.runner", "brdfrig.hdr.dng", "brdfrig.hdr.raw", "brdfrig.sim.grbl",
+                  "brdfrig.sim.camera", "brdfrig.rig.turntable"]
 _CTX = multiprocessing.get_context("forkserver")
 _CTX.set_forkserver_preload(_CHILD_MODULES)
 
@@ -104,7 +104,7 @@ def _shots(store: SessionStore) -> dict[str, str]:
 
 
 def _fit(out: Path) -> dict:
-    from capture.pipeline import run_pipeline
+    from brdfrig.session.pipeline import run_pipeline
 
     result = run_pipeline(out, progress=False, echo=lambda text: None, figures=False)
     return {s.name: s.brdf.to_dict() for s in result.samples}

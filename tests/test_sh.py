@@ -1,4 +1,4 @@
-"""Real SH evaluation (fit.sh): orthonormality, peer agreement, high degree, bad input."""
+"""Real SH evaluation (brdfrig.fit.sh): orthonormality, peer agreement, high degree, bad input."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.special import sph_harm_y
 
-from fit.sh import SPHERICART_MAX_LMAX, num_coeffs, sh_degree, sh_eval, sh_index
+from brdfrig.fit.sh import SPHERICART_MAX_LMAX, num_coeffs, sh_degree, sh_eval, sh_index
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:
@@ -27,7 +27,7 @@ def gauss_legendre_grid(lmax: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def real_from_complex(l: int, m: int, dirs: np.ndarray) -> np.ndarray:
-    """Y_lm of fit.sh from scipy's complex SH (Condon-Shortley phase included there).
+    """Y_lm of brdfrig.fit.sh from scipy's complex SH (Condon-Shortley phase included there).
 
     Y_l0 = Y_l^0;  Y_lm = sqrt(2) (-1)^m Re Y_l^m;  Y_l,-m = sqrt(2) (-1)^m Im Y_l^m  (m > 0).
     """

@@ -7,9 +7,9 @@ import re
 import numpy as np
 import pytest
 
-from capture.cli import main
-from fit.shproject import reconstruct_latlong
-from hdr.exr import write_exr
+from brdfrig.cli.main import main
+from brdfrig.fit.shproject import reconstruct_latlong
+from brdfrig.hdr.exr import write_exr
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""Real Wigner-D rotations (fit.rotation) checked against SH values, group laws and definitions."""
+"""Real Wigner-D rotations (brdfrig.fit.rotation) checked against SH values, group laws and definitions."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fit.rotation import euler_zyz, local_lighting, normal_frames, rotate_coeffs, wigner_d_real
-from fit.sh import sh_eval
-from fit.shproject import reconstruct
+from brdfrig.fit.rotation import euler_zyz, local_lighting, normal_frames, rotate_coeffs, wigner_d_real
+from brdfrig.fit.sh import sh_eval
+from brdfrig.fit.shproject import reconstruct
 
 
 def random_dirs(n: int, seed: int = 0) -> np.ndarray:
@@ -143,7 +143,7 @@ def test_bad_coeffs_and_normals():
 
 
 def test_large_batches_split_over_threads_give_the_same_result():
-    from fit import rotation
+    from brdfrig.fit import rotation
 
     lmax = 10
     c = np.random.default_rng(11).normal(size=((lmax + 1) ** 2, 1))

@@ -1,13 +1,13 @@
-"""SH projection and reconstruction (fit.shproject) on synthetic and real lat-long maps."""
+"""SH projection and reconstruction (brdfrig.fit.shproject) on synthetic and real lat-long maps."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from fit.scene import Environment
-from fit.sh import sh_eval, sh_index
-from fit.shproject import (
+from brdfrig.fit.scene import Environment
+from brdfrig.fit.sh import sh_eval, sh_index
+from brdfrig.fit.shproject import (
     _fejer_weights,
     project,
     project_environment,
@@ -16,7 +16,7 @@ from fit.shproject import (
     reconstruct_latlong,
     sh_window,
 )
-from hdr.envmap import latlong_directions
+from brdfrig.hdr.envmap import latlong_directions
 
 H, W = 256, 512
 BASIS = [(0, 0), (1, -1), (2, 1), (5, -3), (8, 8), (12, 0), (20, -17)]
@@ -98,7 +98,7 @@ def test_window_reduces_ringing_of_a_disc_light():
 
 
 def test_real_probes_project_and_round_trip(real_probes):
-    from hdr.exr import read_image
+    from brdfrig.hdr.exr import read_image
 
     for path in real_probes:
         img = read_image(path).astype(np.float64)

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fit.groundtruth import render_groundtruth
-from rig.sim_bench import BACKDROP, SimBench, procedural_environment, rotation_y
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.sim.bench import BACKDROP, SimBench, procedural_environment, rotation_y
 
 
 @pytest.fixture(scope="module")

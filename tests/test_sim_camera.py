@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hdr.merge import merge_bracket
-from hdr.raw import decode_raw, read_exposure, read_frame
-from rig.camera import Camera
-from rig.grbl_sim import GrblSimulator
-from rig.sim_bench import SimBench
-from rig.sim_camera import SimulatedCamera
-from rig.turntable import GrblTurntable
+from brdfrig.hdr.merge import merge_bracket
+from brdfrig.hdr.raw import decode_raw, read_exposure, read_frame
+from brdfrig.rig.camera import Camera
+from brdfrig.sim.grbl import GrblSimulator
+from brdfrig.sim.bench import SimBench
+from brdfrig.sim.camera import SimulatedCamera
+from brdfrig.rig.turntable import GrblTurntable
 
 FULL_WELL, READ_NOISE = 4000.0, 4.0
 

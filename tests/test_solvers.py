@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fit.solvers import StreamedQR, solve
+from brdfrig.fit.solvers import StreamedQR, solve
 
 
 def _stream(a: np.ndarray, b: np.ndarray, w: np.ndarray, sizes=(7, 300, 1, 64)) -> StreamedQR:
@@ -201,7 +201,7 @@ def test_streamed_factor_is_the_dense_householder_factor():
 
 def test_probe_solution_is_the_damped_least_squares_solution():
     """Oracle: numpy's lstsq of the explicitly stacked ``[A / d; mu I] y = [b; 0]`` (dense, SVD-based)."""
-    from fit.solvers import PROBE_DAMPING, probe_solution
+    from brdfrig.fit.solvers import PROBE_DAMPING, probe_solution
 
     a, b, w, _ = _problem(n=10, c=2)
     a[:, 7, :] = 2.0 * a[:, 3, :]  # rank-deficient: only the damping makes the answer unique

@@ -1,11 +1,11 @@
-"""Sphere pixels (hdr.sphere): selection, normals, limb and partial-pixel weights."""
+"""Sphere pixels (brdfrig.hdr.sphere): selection, normals, limb and partial-pixel weights."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hdr.sphere import DEFAULT_LIMB_MARGIN_PX, sphere_pixels
+from brdfrig.hdr.sphere import DEFAULT_LIMB_MARGIN_PX, sphere_pixels
 
 
 def corners_inside(rows, cols, cx, cy, r):

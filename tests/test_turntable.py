@@ -8,10 +8,10 @@ from collections import Counter
 
 import pytest
 
-from rig.errors import DeviceNotFound, DeviceRefused, DeviceTimeout, RigError
-from rig.grbl_protocol import parse_reply
-from rig.grbl_sim import FaultRates, GrblSimulator
-from rig.turntable import GrblTurntable, Turntable
+from brdfrig.rig.errors import DeviceNotFound, DeviceRefused, DeviceTimeout, RigError
+from brdfrig.rig.grbl_protocol import parse_reply
+from brdfrig.sim.grbl import FaultRates, GrblSimulator
+from brdfrig.rig.turntable import GrblTurntable, Turntable
 
 SPD = 80.0  # steps per degree: 1.8 deg motor, 16 microsteps, 1:2 belt... (0.0125 deg per step)
 STEP = 1.0 / SPD
@@ -230,7 +230,7 @@ def test_readline_deadline_holds_while_garbage_trickles_in():
     import threading
     import tty
 
-    from rig.serial_link import SerialLink
+    from brdfrig.rig.serial_link import SerialLink
 
     master, slave = os.openpty()
     tty.setraw(slave)

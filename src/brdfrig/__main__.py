@@ -1,5 +1,5 @@
 import sys
 
-from capture.cli import main
+from brdfrig.cli.main import main
 
 sys.exit(main())

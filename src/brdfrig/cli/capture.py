@@ -36,7 +36,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from capture.session import resume_session, run_session
+    from brdfrig.session.runner import resume_session, run_session
 
     prompt = None if args.yes else input
     progress = not args.no_progress
@@ -45,8 +45,8 @@ def run(args) -> int:
         print(text, flush=True)
 
     if args.capture_command == "run":
-        from capture.config import load_session_config
-        from capture.plan import build_plan, describe_plan
+        from brdfrig.session.config import load_session_config
+        from brdfrig.session.plan import build_plan, describe_plan
 
         config = load_session_config(args.plan, args.rig, args.fit_file)
         if args.dry_run:
@@ -62,7 +62,7 @@ def run(args) -> int:
     if args.no_fit:
         echo(f"fit it with `brdfrig refit {store.root}`")
         return 0
-    from capture.pipeline import run_pipeline
+    from brdfrig.session.pipeline import run_pipeline
 
     result = run_pipeline(store.root, progress=progress, echo=echo)
     echo(f"results in {result.results_dir}")

@@ -56,10 +56,10 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from fit.shproject import project_latlong, reconstruct_latlong, sh_window
-    from hdr.envmap import latlong_directions
-    from capture.figures import save_png
-    from hdr.exr import read_image
+    from brdfrig.fit.shproject import project_latlong, reconstruct_latlong, sh_window
+    from brdfrig.hdr.envmap import latlong_directions
+    from brdfrig.session.figures import save_png
+    from brdfrig.hdr.exr import read_image
 
     bands = parse_bands(args.bands)
     out = Path(args.output)

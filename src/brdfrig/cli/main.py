@@ -1,38 +1,45 @@
 """The ``brdfrig`` command line.
 
-Each sub-command lives in its own module ``capture/cmd_<name>.py`` exposing
+Each sub-command lives in its own module ``brdfrig/cli/<name>.py`` exposing
 ``register(subparsers)``, which adds its parser and sets ``func`` to a callable
 ``run(args) -> int``.  Heavy imports (OpenCV, numba, OpenImageIO) belong inside
 ``run`` so that ``brdfrig --help`` stays instant.
 
-User errors (bad files, bad arguments, device failures) are raised as
-``ValueError``/``OSError``/``rig.errors.RigError`` subclasses anywhere below
-and turned here into one clear line on stderr and a non-zero exit.  Set
-``BRDFRIG_DEBUG=1`` to see the traceback instead.
+What the user can fix is a :class:`brdfrig.errors.BrdfrigError` (bad input,
+config, session store, device) or an ``OSError`` about a file (missing,
+unwritable, disk full): one line ``brdfrig CMD: error: ...`` on stderr, exit 2.
+Any other exception is a bug in brdfrig: its traceback, then a line asking for
+a report with the version, exit 1.  ``BRDFRIG_DEBUG=1`` shows the traceback of
+user errors too.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import sys
+import traceback
+
+from brdfrig.errors import BrdfrigError
 
 COMMAND_MODULES: tuple[str, ...] = (
     # at the bench
-    "capture.cmd_demo",
-    "capture.cmd_rig",
-    "capture.cmd_capture",
-    "capture.cmd_refit",
+    "brdfrig.cli.demo",
+    "brdfrig.cli.rig",
+    "brdfrig.cli.capture",
+    "brdfrig.cli.refit",
     # offline, one step at a time
-    "capture.cmd_merge",
-    "capture.cmd_probe",
-    "capture.cmd_envsh",
-    "capture.cmd_fit",
-    "capture.cmd_render",
-    "capture.cmd_bench",
+    "brdfrig.cli.merge",
+    "brdfrig.cli.probe",
+    "brdfrig.cli.envsh",
+    "brdfrig.cli.fit",
+    "brdfrig.cli.render",
+    "brdfrig.cli.bench",
 )
 
+EXIT_BUG = 1
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -42,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="brdfrig",
         description="Measure isotropic BRDFs under natural light with a chrome probe and sample spheres.",
     )
+    from brdfrig import __version__
+
+    parser.add_argument("--version", action="version", version=f"brdfrig {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
@@ -50,18 +60,37 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from rig.errors import RigError
-
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("brdfrig: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except (ValueError, OSError, RigError) as exc:
+    except (BrdfrigError, OSError, MemoryError) as exc:
         if os.environ.get("BRDFRIG_DEBUG"):
             raise
-        print(f"brdfrig {args.command}: error: {exc}", file=sys.stderr)
+        print(f"brdfrig {args.command}: error: {user_message(exc)}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except Exception:
+        from brdfrig import __version__
+
+        traceback.print_exc()
+        print(f"brdfrig {args.command}: internal error: this is a bug in brdfrig {__version__}, not in your input; "
+              "please report it to the brdfrig issue tracker with the command line and the traceback above",
+              file=sys.stderr)
+        return EXIT_BUG
+
+
+def user_message(exc: BaseException) -> str:
+    """The one line shown for a user error: the message, with the file name and a hint for OS errors."""
+    if isinstance(exc, MemoryError):
+        return "out of memory: the images or sizes asked for are too large for this machine"
+    if isinstance(exc, OSError) and not isinstance(exc, BrdfrigError):
+        if exc.errno == errno.ENOSPC:
+            where = f" while writing {exc.filename}" if exc.filename else ""
+            return f"disk full{where}: free some space and run the command again"
+        if exc.strerror:
+            return f"{exc.filename}: {exc.strerror}" if exc.filename else exc.strerror
+    return str(exc)
 
 
 if __name__ == "__main__":

@@ -19,13 +19,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.ranges import Range
 
-def _times(text: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--times must be comma-separated numbers of seconds, got {text!r}") from None
-    return values
+EXPOSURE_TIME = Range(0, 3600, open_lo=True)  # seconds
+FULL_WELL = Range(1, 1e7)  # electrons
+READ_NOISE = Range(0, 1e4)  # electrons
+CLIP_RADIUS = Range(0, 16, integer=True)  # pixels
 
 
 def register(subparsers) -> None:
@@ -36,8 +36,8 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="the frames of one bracket")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.exr", help="output EXR")
-    p.add_argument("--times", type=_times, metavar="T1,T2,...",
+    add_output_arguments(p, "OUT.exr", "output EXR")
+    p.add_argument("--times", type=EXPOSURE_TIME.args("each exposure time (s)"), metavar="T1,T2,...",
                    help="exposure times in seconds, one per file (default: from the files' metadata)")
     p.add_argument("--weighting", choices=("optimal", "debevec"), default="optimal",
                    help="noise-optimal t^2/variance weights or Debevec's hat (default: %(default)s)")
@@ -45,17 +45,18 @@ def register(subparsers) -> None:
                    help="linearisation of integer TIFF/JPEG frames: recover the response from the bracket "
                         "(auto for integer TIFF/JPEG), or take them as linear (default: %(default)s)")
     p.add_argument("--align", action="store_true", help="align frames by translation (median threshold bitmaps)")
-    p.add_argument("--clip-radius", type=int, default=1, metavar="PX",
+    p.add_argument("--clip-radius", type=CLIP_RADIUS.arg(), default=1, metavar="PX",
                    help="weight out every pixel within PX pixels of a pixel clipped in any channel: demosaicing "
                         "spreads clipped values into neighbours that then read low (1 = bilinear demosaicing, as "
                         "for raw files; 0 = frames not demosaiced; in-camera TIFF/JPEG may need 2) "
                         "(default: %(default)s)")
     p.add_argument("--no-reestimate", action="store_true",
                    help="trust the nominal exposure times (no re-estimation from well-exposed overlap)")
-    p.add_argument("--full-well", type=float, default=None, metavar="E",
-                   help="sensor full-well capacity in electrons for the noise model (default: 20000)")
-    p.add_argument("--read-noise", type=float, default=None, metavar="E",
-                   help="read noise in electrons for the noise model (default: 5)")
+    p.add_argument("--full-well", type=FULL_WELL.arg(), default=None, metavar="E",
+                   help=f"sensor full-well capacity in electrons for the noise model, {FULL_WELL.text()[1:]} "
+                        "(default: 20000)")
+    p.add_argument("--read-noise", type=READ_NOISE.arg(), default=None, metavar="E",
+                   help=f"read noise in electrons for the noise model, {READ_NOISE.text()[1:]} (default: 5)")
     p.set_defaults(func=run)
 
 
@@ -75,27 +76,36 @@ def _effective_times(exposures) -> list[float]:
     return out
 
 
+def _check_distinct(files) -> None:
+    """InputError if one file is given twice (also under another name): a bracket needs distinct frames."""
+    import os
+
+    from brdfrig.errors import InputError
+
+    for i, a in enumerate(files):
+        for b in files[:i]:
+            if a.exists() and b.exists() and os.path.samefile(a, b):
+                raise InputError(f"{a} is given twice (also as {b}): a bracket needs distinct frames")
+
+
 def run(args) -> int:
     import sys
     import warnings
 
     import numpy as np
 
-    from hdr.exr import write_exr
-    from hdr.merge import DEFAULT_FULL_WELL, DEFAULT_READ_NOISE, merge_bracket
-    from hdr.raw import read_exposure, read_frame
-    from hdr.response import linearize, recover_response
+    from brdfrig.errors import InputError
+    from brdfrig.hdr.exr import write_exr
+    from brdfrig.hdr.merge import DEFAULT_FULL_WELL, DEFAULT_READ_NOISE, merge_bracket
+    from brdfrig.hdr.raw import read_exposure, read_frame
+    from brdfrig.hdr.response import linearize, recover_response
 
     files = list(args.files)
-    if args.clip_radius < 0:
-        raise ValueError(f"--clip-radius must be a non-negative number of pixels, got {args.clip_radius}")
-    if args.output.suffix.lower() != ".exr":
-        raise ValueError(f"output {args.output}: must be an .exr file")
-    if not args.output.parent.is_dir():
-        raise FileNotFoundError(f"output {args.output}: directory {args.output.parent} does not exist")
+    check_output(args.output, files, suffixes=(".exr",), writes="an OpenEXR image", no_clobber=args.no_clobber)
+    _check_distinct(files)
     if args.times is not None:
         if len(args.times) != len(files):
-            raise ValueError(f"--times has {len(args.times)} values for {len(files)} files")
+            raise InputError(f"--times has {len(args.times)} values for {len(files)} files")
         times = args.times
         provenance = "--times"
         exposures = None
@@ -108,8 +118,11 @@ def run(args) -> int:
     for f in files:
         image, is_linear = read_frame(f)
         if frames and image.shape != frames[0].shape:
-            raise ValueError(f"{f} has size {image.shape[1]}x{image.shape[0]}, {files[0]} has "
+            raise InputError(f"{f} has size {image.shape[1]}x{image.shape[0]}, {files[0]} has "
                              f"{frames[0].shape[1]}x{frames[0].shape[0]}: a bracket must have one image size")
+        for g, other in zip(files, frames):
+            if np.array_equal(image, other):
+                raise InputError(f"{f} and {g} hold identical pixels: the same frame given twice")
         frames.append(image)
         linear.append(is_linear)
     response = args.response
@@ -117,7 +130,7 @@ def run(args) -> int:
         response = "linear" if all(linear) else "recover"
     if response == "recover":
         if len(files) < 2:
-            raise ValueError("response recovery needs at least 2 frames; use --response linear for one frame")
+            raise InputError("response recovery needs at least 2 frames; use --response linear for one frame")
         curve = recover_response(frames, times, levels=256 if all(f.suffix.lower() in (".jpg", ".jpeg")
                                                                  for f in files) else 1024)
         frames = [linearize(f, curve) for f in frames]
@@ -127,7 +140,8 @@ def run(args) -> int:
         res = merge_bracket(
             frames, times, weighting=args.weighting, saturation=1.0, clip_radius=args.clip_radius,
             align=args.align, reestimate_times=not args.no_reestimate, names=[str(f) for f in files],
-            full_well=args.full_well or DEFAULT_FULL_WELL, read_noise=args.read_noise or DEFAULT_READ_NOISE,
+            full_well=DEFAULT_FULL_WELL if args.full_well is None else args.full_well,
+            read_noise=DEFAULT_READ_NOISE if args.read_noise is None else args.read_noise,
         )
     for w in caught:
         print(f"brdfrig merge: warning: {w.message}", file=sys.stderr)
@@ -147,7 +161,8 @@ def run(args) -> int:
                                     "iso": e.iso if np.isfinite(e.iso) else None} for e in exposures]
     if res.shifts is not None:
         attributes["shifts_px"] = res.shifts.tolist()
-    write_exr(args.output, res.radiance, {"variance": res.variance, "flags": res.flags.max(axis=2)}, attributes)
+    write_exr(args.output, res.radiance, {"variance": res.variance, "flags": res.flags.max(axis=2)}, attributes,
+              overwrite=not args.no_clobber)
     ok = res.radiance[res.flags == 0]
     pos = ok[ok > 0]
     rng = f"{pos.max() / pos.min():.3g}:1" if pos.size else "n/a"

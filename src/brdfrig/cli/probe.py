@@ -20,18 +20,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.ranges import Range
 
-def _floats(n_allowed: tuple[int, ...], what: str):
-    def parse(text: str) -> list[float]:
-        try:
-            values = [float(v) for v in text.split(",")]
-        except ValueError:
-            values = []
-        if len(values) not in n_allowed:
-            raise argparse.ArgumentTypeError(f"{what} must be {' or '.join(map(str, n_allowed))} comma-separated "
-                                             f"numbers, got {text!r}")
-        return values
-    return parse
+PIXELS = Range(-1e5, 1e5)  # circle centres, radii and boxes, pixels
+ALBEDO = Range(0, 1, open_lo=True)
+RIM = Range(0, 1, open_lo=True)
+CAMERA_MASK = Range(0, 90)  # degrees
+WIDTH = Range(8, 16384, integer=True)  # lat-long pixels
 
 
 def _patches(text: str) -> tuple[list[float], list[float]]:
@@ -39,7 +35,7 @@ def _patches(text: str) -> tuple[list[float], list[float]]:
     if len(parts) != 2:
         raise argparse.ArgumentTypeError(f"--albedo-patches must be DIRECT:REFLECTED pixel boxes "
                                          f"x0,y0,x1,y1:x0,y0,x1,y1, got {text!r}")
-    box = _floats((4,), "an --albedo-patches box")
+    box = PIXELS.args("each box coordinate", (4,))
     return box(parts[0]), box(parts[1])
 
 
@@ -52,20 +48,22 @@ def register(subparsers) -> None:
     )
     p.add_argument("images", nargs="+", type=Path, metavar="PROBE",
                    help="probe image(s) (.exr/.hdr); several = captures at different ball rotations")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="ENV.exr", help="output lat-long EXR")
-    p.add_argument("--circle", type=_floats((3,), "--circle"), metavar="CX,CY,R",
+    add_output_arguments(p, "ENV.exr", "output lat-long EXR")
+    p.add_argument("--circle", type=PIXELS.args("each of cx, cy, r", (3,)), metavar="CX,CY,R",
                    help="ball circle in pixels (MATH.md image coordinates); default: detected per image")
     group = p.add_mutually_exclusive_group()
-    group.add_argument("--albedo", type=_floats((1, 3), "--albedo"), metavar="A[,G,B]",
+    group.add_argument("--albedo", type=ALBEDO.args("each albedo", (1, 3)), metavar="A[,G,B]",
                        help="ball reflectance, one value or one per channel (default: 1, uncalibrated)")
     group.add_argument("--albedo-patches", type=_patches, metavar="X0,Y0,X1,Y1:X0,Y0,X1,Y1",
                        help="pixel boxes of a diffuse patch seen directly and reflected in the ball (ratio method)")
     p.add_argument("--fresnel", action="store_true", help="angle-dependent chrome reflectance (conductor Fresnel)")
-    p.add_argument("--rim", type=float, default=None, metavar="F", help="drop ball pixels beyond F of the radius "
-                   "(default 0.97)")
-    p.add_argument("--camera-mask", type=float, default=0.0, metavar="DEG",
-                   help="drop the cone of DEG degrees around the view direction (camera reflection; default 0)")
-    p.add_argument("--width", type=int, default=512, metavar="W", help="lat-long width (height W/2; default 512)")
+    p.add_argument("--rim", type=RIM.arg(), default=None, metavar="F", help="drop ball pixels beyond F of the radius, "
+                   f"F{RIM.text()} (default 0.97)")
+    p.add_argument("--camera-mask", type=CAMERA_MASK.arg(), default=0.0, metavar="DEG",
+                   help=f"drop the cone of DEG degrees around the view direction (camera reflection), "
+                        f"DEG{CAMERA_MASK.text()} (default 0)")
+    p.add_argument("--width", type=WIDTH.arg(), default=512, metavar="W",
+                   help=f"lat-long width, even, W{WIDTH.text()} (height W/2; default 512)")
     p.add_argument("--statistic", choices=("median", "trimmed"), default="median",
                    help="per-pixel statistic over rotations (default: %(default)s)")
     p.set_defaults(func=run)
@@ -74,8 +72,9 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from hdr.exr import read_image, write_exr
-    from hdr.probe import (
+    from brdfrig.errors import InputError
+    from brdfrig.hdr.exr import read_image, write_exr
+    from brdfrig.hdr.probe import (
         CHROME_IOR,
         DEFAULT_RIM,
         albedo_from_patches,
@@ -85,32 +84,27 @@ def run(args) -> int:
         unseen_cone_deg,
     )
 
-    if args.output.suffix.lower() != ".exr":
-        raise ValueError(f"output {args.output}: must be an .exr file")
-    if not args.output.parent.is_dir():
-        raise FileNotFoundError(f"output {args.output}: directory {args.output.parent} does not exist")
+    check_output(args.output, args.images, suffixes=(".exr",), writes="an OpenEXR lat-long map",
+                 no_clobber=args.no_clobber)
     rim = DEFAULT_RIM if args.rim is None else args.rim
-    if not 0 < rim <= 1:
-        raise ValueError(f"--rim must be in (0, 1], got {rim}")
-    if args.width < 8 or args.width % 2:
-        raise ValueError(f"--width must be an even integer >= 8, got {args.width}")
+    if args.width % 2:
+        raise InputError(f"--width must be an even integer{WIDTH.text()}, got {args.width}")
+    if args.circle is not None and not args.circle[2] > 0:
+        raise InputError(f"--circle radius must be > 0, got {args.circle[2]:g}")
 
     images = [read_image(path) for path in args.images]
     for path, im in zip(args.images, images):
         if im.shape != images[0].shape:
-            raise ValueError(f"{path} is {im.shape[1]}x{im.shape[0]}, {args.images[0]} is "
+            raise InputError(f"{path} is {im.shape[1]}x{im.shape[0]}, {args.images[0]} is "
                              f"{images[0].shape[1]}x{images[0].shape[0]}: probe captures must have one size")
     circles = []
     for path, im in zip(args.images, images):
         if args.circle is not None:
             circle = tuple(args.circle)
         else:
-            from hdr.detect import SphereNotFoundError, detect_sphere
+            from brdfrig.hdr.detect import detect_sphere
 
-            try:
-                circle = detect_sphere(im)
-            except SphereNotFoundError as exc:
-                raise ValueError(f"{path}: {exc} (give --circle cx,cy,r)") from None
+            circle = detect_sphere(im, name=str(path))
         circles.append(check_circle_in_frame(im.shape, circle, f"{path}: probe circle"))
     if len(images) > 1:
         image, circle = average_rotations(images, circles, statistic=args.statistic)
@@ -126,7 +120,7 @@ def run(args) -> int:
         rx, ry = 0.5 * (reflected[0] + reflected[2]), 0.5 * (reflected[1] + reflected[3])
         rho = np.hypot(rx - circle[0], ry - circle[1]) / circle[2]
         if rho >= 1:
-            raise ValueError(f"--albedo-patches: the reflected box centre ({rx:.1f}, {ry:.1f}) is not on the ball "
+            raise InputError(f"--albedo-patches: the reflected box centre ({rx:.1f}, {ry:.1f}) is not on the ball "
                              f"{tuple(round(c, 2) for c in circle)}")
         albedo_angle = float(np.degrees(np.arcsin(rho)))
     fresnel = CHROME_IOR if args.fresnel else None
@@ -146,7 +140,8 @@ def run(args) -> int:
         "fresnel_ior": None if fresnel is None else list(fresnel),
         "rotation_statistic": args.statistic if len(images) > 1 else None,
     }
-    write_exr(args.output, latlong, {"mask": seen.astype(np.float32)}, attributes, latlong=True)
+    write_exr(args.output, latlong, {"mask": seen.astype(np.float32)}, attributes, latlong=True,
+              overwrite=not args.no_clobber)
     unseen = 1 - float(np.mean(seen))
     albedo_text = "1 (uncalibrated)" if albedo is None else ", ".join(f"{a:.4g}" for a in albedo)
     print(f"probe: circle ({circle[0]:.2f}, {circle[1]:.2f}, {circle[2]:.2f}) px"

@@ -15,7 +15,7 @@ __all__ = ["register", "run"]
 
 
 def register(subparsers) -> None:
-    from capture.config import FIT_MODELS, FIT_SOLVERS
+    from brdfrig.session.config import FIT_MODELS, FIT_SOLVERS
 
     parser = subparsers.add_parser("refit", help="verify a stored session and fit it again (offline)",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -32,8 +32,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from dataclasses import asdict
 
-    from capture.config import fit_preset_from_dict, load_fit_preset
-    from capture.pipeline import open_verified, run_pipeline
+    from brdfrig.session.config import fit_preset_from_dict, load_fit_preset
+    from brdfrig.session.pipeline import open_verified, run_pipeline
 
     _, config = open_verified(args.dir)  # refuses a session whose files fail their checksums
     base = load_fit_preset(args.preset) if args.preset else config.fit

@@ -63,7 +63,7 @@ def register(subparsers) -> None:
 def _settings(args) -> tuple[_TableSettings, _CameraSettings, dict, str]:
     """Device settings from --config, or from the flags."""
     if args.config:
-        from capture.config import load_session_config
+        from brdfrig.session.config import load_session_config
 
         rig = load_session_config(args.config).rig
         tt, cam = rig.turntable, rig.camera
@@ -81,8 +81,8 @@ def _settings(args) -> tuple[_TableSettings, _CameraSettings, dict, str]:
 
 def _check_turntable(s: _TableSettings, stack: contextlib.ExitStack, report) -> object | None:
     """Connect, home, move to +10 deg and back; return the simulator (or None) for the simulated camera."""
-    from rig.errors import DeviceNotFound, RigError
-    from rig.turntable import GrblTurntable
+    from brdfrig.rig.errors import DeviceNotFound, RigError
+    from brdfrig.rig.turntable import GrblTurntable
 
     if s.backend == "none":
         report("turntable", "skipped", "no turntable configured")
@@ -90,7 +90,7 @@ def _check_turntable(s: _TableSettings, stack: contextlib.ExitStack, report) -> 
     sim = None
     port = s.port
     if s.backend == "sim":
-        from rig.grbl_sim import GrblSimulator
+        from brdfrig.sim.grbl import GrblSimulator
 
         sim = stack.enter_context(GrblSimulator(steps_per_degree=s.steps_per_degree, backlash_deg=s.backlash_deg,
                                                 max_rate_deg_s=360.0, baud=s.baud, homing_time_s=0.2))
@@ -120,23 +120,23 @@ def _check_turntable(s: _TableSettings, stack: contextlib.ExitStack, report) -> 
 
 
 def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Path, report) -> None:
-    from rig.errors import RigError
+    from brdfrig.rig.errors import RigError
 
     if s.backend == "none":
         report("camera", "skipped", "no camera configured")
         return
     try:
         if s.backend == "sim":
-            from capture.session import make_sim_bench
-            from rig.sim_camera import SimulatedCamera
+            from brdfrig.session.runner import make_sim_bench
+            from brdfrig.sim.camera import SimulatedCamera
 
             camera = SimulatedCamera(make_sim_bench(sim_opts, carries, "the rig check's simulated bench"), sim)
         elif s.backend == "gphoto2":
-            from rig.gphoto import GphotoCamera
+            from brdfrig.rig.gphoto import GphotoCamera
 
             camera = GphotoCamera()
         else:
-            from rig.watch_folder import WatchFolderCamera
+            from brdfrig.rig.watch_folder import WatchFolderCamera
 
             camera = WatchFolderCamera(s.watch_dir, timeout_s=s.timeout_s,
                                        trigger=lambda msg: print(f"rig check: {msg}", file=sys.stderr))
@@ -149,7 +149,7 @@ def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Pa
         report("camera", "FAILED", f"{type(exc).__name__}: {exc}")
         return
     try:
-        from hdr.raw import read_exposure
+        from brdfrig.hdr.raw import read_exposure
 
         exp = read_exposure(path)
         report("  metadata", "ok", f"file says {exp.time_s:g} s, ISO {exp.iso:g}, f/{exp.f_number:g}")

@@ -59,6 +59,7 @@ from typing import Callable, TypeVar
 
 import numpy as np
 
+from brdfrig._atomic import temp_path
 from brdfrig.fit.analytic import GGX
 from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.metrics import relative_rms
@@ -451,13 +452,11 @@ def plot_pareto(result: BenchResult, path: str | os.PathLike) -> Path:
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.png")
     try:
-        fig.savefig(tmp)
-        os.replace(tmp, path)
+        with temp_path(path) as tmp:
+            fig.savefig(tmp)
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
     return path
 
 

@@ -43,7 +43,10 @@ CONVENTIONS = {
 
 
 def jsonable(obj):
-    """Convert numpy scalars/arrays, non-finite floats (as text) and other objects (as text) to plain JSON values."""
+    """Convert numpy scalars/arrays, non-finite floats (as text), objects with ``to_dict()`` (a fit report) and
+    other objects (as text) to plain JSON values."""
+    if hasattr(obj, "to_dict"):
+        return jsonable(obj.to_dict())
     if isinstance(obj, dict):
         return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -59,7 +62,7 @@ def jsonable(obj):
     return str(obj)  # paths and other objects in a report or provenance: their text
 
 
-def save_brdf(path, brdf: FittedBRDF, report: dict | None = None, provenance: dict | None = None, *,
+def save_brdf(path, brdf: FittedBRDF, report=None, provenance: dict | None = None, *,
               overwrite: bool = True) -> Path:
     """Write ``brdf`` and its fit ``report`` to ``path`` (JSON), atomically (``overwrite=False``: never replace a file).
 

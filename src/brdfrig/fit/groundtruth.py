@@ -6,7 +6,7 @@ the rendering integral evaluated as a sum over the environment samples::
     B(n) = sum_j L_j rho(w_j, v, n) max(n.w_j, 0) dOmega_j
 
 with the environment's own directions ``w_j``, radiances ``L_j`` and solid
-angles ``dOmega_j`` (``fit.scene.Environment``).  This is independent of the SH
+angles ``dOmega_j`` (``brdfrig.fit.scene.Environment``).  This is independent of the SH
 machinery of the fitter, which is what makes it a ground truth for tests,
 benchmarks and the simulated camera.  Each sample acts as a point source of
 power ``L_j dOmega_j`` at its centre direction; the accuracy is that of this
@@ -26,10 +26,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from fit.analytic import ggx_lobe, rho_channel
-from fit.scene import Environment
+from brdfrig.fit.analytic import ggx_lobe, rho_channel
+from brdfrig.fit.scene import Environment
 
-__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis"]
+__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis", "render_basis"]
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
@@ -46,7 +46,7 @@ def render_kernel(
     Parameters
     ----------
     kind, params : int, (C, NUM_PARAMS) float64
-        The BRDF as :func:`fit.analytic.rho_channel` takes it; channel ``c`` of
+        The BRDF as :func:`brdfrig.fit.analytic.rho_channel` takes it; channel ``c`` of
         the output uses ``params[c]`` and ``weighted_radiance[:, c]``.
     normals : (N, 3) float64
         Unit normals.
@@ -114,6 +114,36 @@ def _ggx_basis_kernel(
     return out
 
 
+@numba.njit(cache=True, fastmath=False, parallel=True)
+def _basis_kernel(kind: int, rows: np.ndarray, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Quadrature of ``K`` BRDF rows of one kind under every channel's lighting (see :func:`render_basis`)."""
+    n_pix = normals.shape[0]
+    n_env = dirs.shape[0]
+    nc = weighted_radiance.shape[1]
+    nk = rows.shape[0]
+    out = np.zeros((n_pix, nc, nk))
+    cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
+    for i in numba.prange(n_pix):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        cos_o = nx * view[0] + ny * view[1] + nz * view[2]
+        if cos_o <= 0.0:
+            continue
+        acc = np.zeros((nc, nk))
+        val = np.empty(nk)
+        for j in range(n_env):
+            cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
+            if cos_i <= 0.0:
+                continue
+            for k in range(nk):
+                val[k] = rho_channel(kind, rows[k], cos_i, cos_o, cos_io[j]) * cos_i
+            for c in range(nc):
+                lw = weighted_radiance[j, c]
+                for k in range(nk):
+                    acc[c, k] += lw * val[k]
+        out[i] = acc
+    return out
+
+
 def _kernel_inputs(normals, env: Environment, view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Contiguous float64 (normals, seen dirs, radiance * solid angle, view) for the kernels."""
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
@@ -143,17 +173,35 @@ def render_ggx_basis(alpha: float, normals: np.ndarray, env: Environment, view=(
     return _ggx_basis_kernel(float(alpha), normals, dirs, weighted, view)
 
 
+def render_basis(kind: int, rows: np.ndarray, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Renders of ``K`` parameter rows of one BRDF kind, each under every channel of ``env``.
+
+    Column ``k`` of channel ``c`` is the radiance of a BRDF with parameter row ``rows[k]`` (the same
+    for every channel) lit by channel ``c``: the linear parts of a model whose parameter row is linear
+    in some amplitudes (the physically based fits of :mod:`brdfrig.fit.pbr`) render in one pass.
+
+    Parameters and conventions as :func:`render_groundtruth`; ``rows`` is (K, P) float64.
+
+    Returns
+    -------
+    (N, C, K) float64.
+    """
+    normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
+    rows = np.ascontiguousarray(np.atleast_2d(np.asarray(rows, dtype=np.float64)))
+    return _basis_kernel(int(kind), rows, normals, dirs, weighted, view)
+
+
 def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Radiance reflected toward ``view`` by surface points with ``normals`` under ``env``.
 
     Parameters
     ----------
-    brdf : fit.analytic.AnalyticBRDF
+    brdf : brdfrig.fit.analytic.AnalyticBRDF
         Any object with integer ``kind`` and ``kernel_params() -> (C, NUM_PARAMS)``
         (``C`` = 1 applies one parameter set to every channel of ``env``).
     normals : (N, 3) array_like
         Unit surface normals (world frame).
-    env : fit.scene.Environment
+    env : brdfrig.fit.scene.Environment
         Lighting samples; samples with zero solid angle contribute nothing.
     view : (3,) array_like
         Unit direction from the surface toward the (orthographic) camera.

@@ -6,15 +6,15 @@ Model, per colour channel ``c``::
             + (f0_c + (f90_c - f0_c) (1 - h.wi)^5) D_alpha_c(n.h) G2_alpha_c / (4 cos_i cos_o)
 
 - the diffuse term: an Oren-Nayar base (albedo ``d_c``, facet slope deviation
-  ``s_c``; ``retro = max(0, cos dphi) sin(a) tan(b)``, :class:`fit.analytic.OrenNayar`;
+  ``s_c``; ``retro = max(0, cos dphi) sin(a) tan(b)``, :class:`brdfrig.fit.analytic.OrenNayar`;
   ``s = 0`` is Lambertian) plus an SH series radially symmetric about the
-  normal in bands ``1..L`` (the ``diffuse`` model of :mod:`fit.models`
+  normal in bands ``1..L`` (the ``diffuse`` model of :mod:`brdfrig.fit.models`
   without its band 0): ``B = sum_l a_l sum_m L_lm Y_lm(n)``.  The base carries
   every band (no truncation error for a Lambertian, which an SH series alone
   needs ``L >= 8`` to approach: measured 0.8% relighting error at ``L = 8``,
   7% at ``L = 2``, the missing bands leaking into a broad lobe); the series
   absorbs what the base does not fit in the bands the lighting measures;
-- the lobe: :class:`fit.analytic.GGX`'s lobe with its own roughness
+- the lobe: :class:`brdfrig.fit.analytic.GGX`'s lobe with its own roughness
   ``alpha_c``, normal-incidence reflectance ``f0_c`` and a free grazing
   reflectance ``f90_c`` (Schlick's ``f90 = 1`` is not imposed, so the lobe
   stays linear in its amplitudes).
@@ -31,7 +31,7 @@ gives ``dA, dB, f0, f90 >= 0``; ``s_c`` follows from ``B/A`` (clamped to
 linear unknowns and one roughness per channel against thousands of pixels.
 
 Speed: the base's and the lobe's renders are brute-force quadrature
-(:mod:`fit.groundtruth`) on a pixel subsample under a coarsened copy of each environment:
+(:mod:`brdfrig.fit.groundtruth`) on a pixel subsample under a coarsened copy of each environment:
 
 - pixels: at most ``max_pixels`` (default 3000) drawn uniformly from the
   weighted pixels of all scenes.  With about a dozen unknowns per channel the
@@ -59,13 +59,13 @@ import time
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar, nnls
 
-from fit.analytic import GGX, Lambertian, OrenNayar, oren_nayar_ab
-from fit.brdf import register_model
-from fit.groundtruth import render_ggx_basis, render_groundtruth
-from fit.models import DiffuseBRDF
-from fit.scene import Environment, Scene
-from fit.shproject import project_environment
-from fit.system import ModelSpec, design_block
+from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar, oren_nayar_ab
+from brdfrig.fit.brdf import register_model
+from brdfrig.fit.groundtruth import render_ggx_basis, render_groundtruth
+from brdfrig.fit.models import DiffuseBRDF
+from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.shproject import project_environment
+from brdfrig.fit.system import ModelSpec, design_block
 
 __all__ = ["MicrofacetBRDF", "fit_microfacet", "coarsen_environment"]
 
@@ -94,15 +94,15 @@ its roughness is then not determined (and does not matter)."""
 
 @register_model("microfacet")
 class MicrofacetBRDF:
-    """A GGX lobe over an Oren-Nayar base (:class:`fit.analytic.GGX`) plus an SH series (module docstring).
+    """A GGX lobe over an Oren-Nayar base (:class:`brdfrig.fit.analytic.GGX`) plus an SH series (module docstring).
 
-    Implements :class:`fit.brdf.FittedBRDF`.
+    Implements :class:`brdfrig.fit.brdf.FittedBRDF`.
 
     Parameters
     ----------
-    analytic : fit.analytic.GGX
+    analytic : brdfrig.fit.analytic.GGX
         Per-channel ``alpha``, ``f0``, ``f90``, base albedo ``diffuse`` and ``diffuse_sigma``.
-    series : fit.models.DiffuseBRDF or None
+    series : brdfrig.fit.models.DiffuseBRDF or None
         The SH series in bands >= 1 (None: no series).
     """
 

@@ -1,11 +1,11 @@
 """The fitted linear BRDF models (``diffuse``, ``lobe``, ``full``) and the projection of any BRDF onto ``full``.
 
-Each model holds its :class:`fit.system.ModelSpec` and coefficients ``x``
-(n, C) and implements :class:`fit.brdf.FittedBRDF`:
+Each model holds its :class:`brdfrig.fit.system.ModelSpec` and coefficients ``x``
+(n, C) and implements :class:`brdfrig.fit.brdf.FittedBRDF`:
 
 - ``predict(env, normals)`` relights: the environment is projected onto SH up
-  to the model's ``lmax`` (``fit.shproject``) and ``B = A(n) @ x``
-  (:func:`fit.system.design_block`);
+  to the model's ``lmax`` (``brdfrig.fit.shproject``) and ``B = A(n) @ x``
+  (:func:`brdfrig.fit.system.design_block`);
 - ``evaluate(theta_i, theta_o, delta_phi)`` returns ``rho = T / cos(theta_i)``
   from the model's transfer function ``T = rho * max(cos theta_i, 0)``:
   ``diffuse`` ``T = sum_l a_l (2l+1)/(4 pi) P_l(cos theta_i)`` (Funk-Hecke, so
@@ -23,12 +23,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import eval_legendre
 
-from fit.brdf import register_model
-from fit.scene import Environment
-from fit.sh import sh_eval, sh_index
-from fit.shproject import project_environment
-from fit.rotation import local_lighting
-from fit.system import ModelSpec, design_block, outgoing_directions
+from brdfrig.fit.brdf import register_model
+from brdfrig.fit.scene import Environment
+from brdfrig.fit.sh import sh_eval, sh_index
+from brdfrig.fit.shproject import project_environment
+from brdfrig.fit.rotation import local_lighting
+from brdfrig.fit.system import ModelSpec, design_block, outgoing_directions
 
 __all__ = ["LinearBRDF", "DiffuseBRDF", "LobeBRDF", "FullBRDF", "make_linear_brdf", "project_to_full", "plausibility"]
 

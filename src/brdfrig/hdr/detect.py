@@ -32,6 +32,12 @@ Two stages:
    and with the coarse circle to ``max(5, 0.1 r)`` px, or the candidate is
    rejected.
 
+A sphere touching the frame edges (e.g. what ``brdfrig render`` writes: radius
+N/2, centred) leaves no background outside its rim where it touches them, so
+Hough sees no full circle.  When nothing is found, the search is repeated on
+the image padded by a margin of the background level (the median of the four
+corner patches); a circle found there is accepted if it lies within the frame.
+
 Coordinates follow MATH.md: x = column, y = row (down), pixel (i, j) has its
 centre at (j + 0.5, i + 0.5).
 """
@@ -39,6 +45,8 @@ centre at (j + 0.5, i + 0.5).
 from __future__ import annotations
 
 import numpy as np
+
+from brdfrig.errors import InputError
 
 __all__ = ["detect_sphere", "refine_circle", "SphereNotFoundError"]
 
@@ -51,18 +59,18 @@ _MAX_SECTORS = 256  # sectors used at most (evenly spread), bounding the cost at
 _SS = 4  # sub-samples per pixel side for the rim model's coverage integrals
 
 
-class SphereNotFoundError(ValueError):
+class SphereNotFoundError(InputError):
     """No sphere could be found in the image."""
 
 
-def _luminance(image: np.ndarray) -> np.ndarray:
+def _luminance(image: np.ndarray, name: str = "detect_sphere") -> np.ndarray:
     image = np.asarray(image, dtype=np.float32)
     if image.ndim == 3:
         image = image.mean(axis=2) if image.shape[2] != 1 else image[:, :, 0]
     if image.ndim != 2:
-        raise ValueError(f"detect_sphere: expected an (H, W) or (H, W, C) image, got shape {image.shape}")
+        raise InputError(f"{name}: expected an (H, W) or (H, W, C) image, got shape {image.shape}")
     if not np.all(np.isfinite(image)):
-        raise ValueError("detect_sphere: the image contains NaN/inf pixels")
+        raise InputError(f"{name}: the image contains NaN/inf pixels")
     return image
 
 
@@ -334,8 +342,28 @@ def refine_circle(image: np.ndarray, circle, *, n_rays: int | None = None, itera
     return fx, fy, fr
 
 
-def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None = None
-                  ) -> tuple[float, float, float]:
+def _search(lum: np.ndarray, min_r: float, max_r: float) -> tuple[float, float, float]:
+    """Refine the best of the first three Hough candidates that confirms; SphereNotFoundError otherwise."""
+    errors = []
+    for cand in _coarse_circles(lum, min_r, max_r)[:3]:
+        try:
+            return refine_circle(lum, cand)
+        except SphereNotFoundError as exc:
+            errors.append(str(exc))
+    raise SphereNotFoundError(errors[0] if errors else "no circle candidate")
+
+
+def _padded(lum: np.ndarray) -> tuple[np.ndarray, int]:
+    """``lum`` inside a margin of its background level (median of the corner patches), and the margin (px)."""
+    h, w = lum.shape
+    k = max(1, min(h, w) // 16)
+    corners = np.concatenate([lum[:k, :k], lum[:k, -k:], lum[-k:, :k], lum[-k:, -k:]], axis=None)
+    pad = 12 + int(0.06 * min(h, w))
+    return np.pad(lum, pad, mode="constant", constant_values=float(np.median(corners))), pad
+
+
+def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None = None,
+                  name: str = "the image") -> tuple[float, float, float]:
     """Find the circle of the most prominent sphere in an image, to sub-pixel accuracy.
 
     Parameters
@@ -344,6 +372,8 @@ def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None
         Linear (HDR) image of a chrome probe or a sample sphere.
     radius_range : (min_r, max_r), optional
         Radius bounds in pixels (default: 20 to half the smaller image side).
+    name : str
+        The image's file name, for messages.
 
     Returns
     -------
@@ -352,19 +382,27 @@ def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None
 
     Raises
     ------
-    SphereNotFoundError (a ValueError)
-        When no circle is found or its rim cannot be confirmed.
+    SphereNotFoundError (an InputError, a ValueError)
+        When no circle is found or its rim cannot be confirmed; the message
+        names ``name`` and suggests giving the circle.
     """
-    lum = _luminance(image)
+    lum = _luminance(image, name)
     h, w = lum.shape
     min_r, max_r = radius_range if radius_range is not None else (20.0, min(h, w) / 2.0)
+    hint = "give the sphere's circle with --circle cx,cy,r (pixels)"
     if min(h, w) < 16 or max_r < min_r:
-        raise SphereNotFoundError(f"image {w}x{h} too small for a sphere of radius {min_r}-{max_r} px")
-    candidates = _coarse_circles(lum, min_r, max_r)
-    errors = []
-    for cand in candidates[:3]:
-        try:
-            return refine_circle(lum, cand)
-        except SphereNotFoundError as exc:
-            errors.append(str(exc))
-    raise SphereNotFoundError("no sphere found in the image" + (f" ({errors[0]})" if errors else ""))
+        raise SphereNotFoundError(f"{name}: image {w}x{h} too small for a sphere of radius {min_r}-{max_r} px; {hint}")
+    try:
+        return _search(lum, min_r, max_r)
+    except SphereNotFoundError as exc:
+        first = str(exc)
+    padded, pad = _padded(lum)
+    try:
+        cx, cy, r = _search(padded, min_r, max_r)
+    except SphereNotFoundError:
+        cx = cy = r = np.nan
+    cx, cy = cx - pad, cy - pad
+    slack = 0.5  # px: a rim on the frame edge is found to within a fraction of a pixel
+    if r > 0 and cx - r >= -slack and cy - r >= -slack and cx + r <= w + slack and cy + r <= h + slack:
+        return float(cx), float(cy), float(r)
+    raise SphereNotFoundError(f"{name}: no sphere found in the image ({first}); {hint}")

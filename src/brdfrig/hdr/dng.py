@@ -5,8 +5,8 @@ needs (``DNGVersion``, ``CFAPattern``, ``BlackLevel``, ``WhiteLevel``,
 ``ColorMatrix1``, ``AsShotNeutral``) and the exposure tags (``ExposureTime``,
 ``FNumber``, ``ISOSpeedRatings``) in IFD0, where TIFF/EP (the base of DNG)
 places them and where LibRaw (rawpy) and OpenImageIO read them.  The simulated
-camera (``rig.sim_camera``) and the tests write their raw files with it; it is
-read back by :func:`hdr.raw.decode_raw`.
+camera (``brdfrig.sim.camera``) and the tests write their raw files with it; it is
+read back by :func:`brdfrig.hdr.raw.decode_raw`.
 
 Hand-written with tifffile because pidng, the only Python DNG writer, is
 source-only here and its 14-bit and compressed paths fail; a plain CFA TIFF
@@ -16,11 +16,12 @@ with these tags is read back by rawpy exactly.
 from __future__ import annotations
 
 import os
-import tempfile
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+
+from brdfrig._atomic import temp_path
 
 __all__ = ["write_dng", "CFA_PATTERNS"]
 
@@ -157,9 +158,7 @@ def write_dng(
         (50728, _RATIONAL, 3, _rationals(neutral, False), True),  # AsShotNeutral
         (50778, _SHORT, 1, 21, True),  # CalibrationIlluminant1: D65
     ]
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with temp_path(path) as tmp:
         tifffile.imwrite(
             tmp,
             cfa,
@@ -170,10 +169,4 @@ def write_dng(
             extratags=tags,
             metadata=None,
         )
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path

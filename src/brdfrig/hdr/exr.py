@@ -14,9 +14,10 @@ Layout of the EXR files brdfrig writes:
   provenance, sphere circle, ...), plus ``brdfrig:tool_version``;
 - lat-long environment maps carry the standard ``envmap = LATLONG`` attribute.
 
-Every writer is atomic: the file is written to a temporary name in the same
-directory and renamed over the target, so a failure never leaves a partial or
-corrupt output.  Every reader raises ``ValueError`` naming the file for a
+The writer is atomic (:mod:`brdfrig._atomic`): a failure never leaves a
+partial or corrupt output; it refuses (``InputError``) NaN/inf in any channel
+and negative colour values, so garbage is never written.  Every reader raises
+:class:`brdfrig.errors.InputError` (a ``ValueError``) naming the file for a
 missing channel, a truncated or corrupt file or (unless allowed) NaN/inf pixels.
 """
 
@@ -24,13 +25,15 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_exr", "read_exr", "read_image", "read_oiio", "ATTRIBUTE_PREFIX"]
+from brdfrig._atomic import temp_path
+from brdfrig.errors import InputError
+
+__all__ = ["write_exr", "read_exr", "read_image", "read_oiio", "check_output_values", "ATTRIBUTE_PREFIX"]
 
 ATTRIBUTE_PREFIX = "brdfrig:"
 _RGB = ("R", "G", "B")
@@ -51,12 +54,6 @@ def _colour_names(channels: int, path: Path, what: str) -> tuple[str, ...]:
     raise ValueError(f"{path}: {what} must have 1 or 3 colour channels, got {channels}")
 
 
-def _atomic_target(path: Path) -> str:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix or ".exr", dir=path.parent)
-    os.close(fd)
-    return tmp
-
-
 def write_exr(
     path: str | os.PathLike,
     rgb: np.ndarray,
@@ -65,6 +62,8 @@ def write_exr(
     *,
     half: bool = False,
     latlong: bool = False,
+    overwrite: bool = True,
+    allow_nonfinite: bool = False,
 ) -> Path:
     """Write a linear image (plus extra per-pixel channels and metadata) to an EXR file, atomically.
 
@@ -85,6 +84,11 @@ def write_exr(
     latlong : bool
         Mark the file as a lat-long environment map (``envmap`` attribute,
         OpenEXR ``LatLongMap`` convention, see MATH.md).
+    overwrite : bool
+        Replace an existing ``path`` (else ``FileExistsError``, nothing written).
+    allow_nonfinite : bool
+        Write NaN/inf and negative colour values (test files only); by default
+        they raise :class:`~brdfrig.errors.InputError` before anything is written.
 
     Returns
     -------
@@ -99,6 +103,8 @@ def write_exr(
         rgb = rgb[:, :, None]
     if rgb.ndim != 3:
         raise ValueError(f"{path}: image must be (H, W) or (H, W, C), got shape {rgb.shape}")
+    if not allow_nonfinite:
+        check_output_values(rgb, path, "the image", nonnegative=True)
     dtype = np.float16 if half else np.float32
     channels: dict[str, np.ndarray] = {}
     for name, plane in zip(_colour_names(rgb.shape[2], path, "image"), np.moveaxis(rgb, 2, 0)):
@@ -107,6 +113,8 @@ def write_exr(
         image = np.asarray(image)
         if image.shape[:2] != rgb.shape[:2] or image.ndim not in (2, 3):
             raise ValueError(f"{path}: extra channel {key!r} has shape {image.shape}, image is {rgb.shape[:2]}")
+        if not allow_nonfinite:
+            check_output_values(image, path, f"channel {key!r}")
         if image.ndim == 2:
             channels[key] = np.ascontiguousarray(image, dtype=dtype)
         else:
@@ -123,22 +131,36 @@ def write_exr(
     if latlong:
         header["envmap"] = OpenEXR.ENVMAP_LATLONG
 
-    tmp = _atomic_target(path)
-    try:
+    with temp_path(path, overwrite=overwrite) as tmp:
         with OpenEXR.File(header, channels) as exr:
-            exr.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+            exr.write(str(tmp))
     return path
+
+
+def check_output_values(image: np.ndarray, path, what: str, *, nonnegative: bool = False) -> None:
+    """Refuse to write garbage: :class:`InputError` naming ``path`` if ``image`` has NaN/inf (or negative) values.
+
+    ``nonnegative`` applies to radiance; values beyond float32's range count as inf.
+    """
+    image = np.asarray(image)
+    big = np.finfo(np.float32).max
+    bad = ~np.isfinite(image) | (np.abs(image) > big) if image.dtype.kind == "f" else np.zeros(image.shape, bool)
+    if bad.any():
+        idx = np.argwhere(bad)[0]
+        raise InputError(f"{path}: refusing to write {int(bad.sum())} NaN/inf value(s) in {what} "
+                         f"(first at row {idx[0]}, col {idx[1]}): the inputs or options give no valid result")
+    if nonnegative and (image < 0).any():
+        neg = image < 0
+        idx = np.argwhere(neg)[0]
+        raise InputError(f"{path}: refusing to write {int(neg.sum())} negative radiance value(s) in {what} "
+                         f"(min {float(image.min()):.3g}, first at row {idx[0]}, col {idx[1]})")
 
 
 def _check_finite(image: np.ndarray, path: Path, what: str) -> None:
     bad = ~np.isfinite(image)
     if bad.any():
         idx = np.argwhere(bad)[0]
-        raise ValueError(f"{path}: {int(bad.sum())} NaN/inf values in {what} (first at row {idx[0]}, col {idx[1]})")
+        raise InputError(f"{path}: {int(bad.sum())} NaN/inf values in {what} (first at row {idx[0]}, col {idx[1]})")
 
 
 def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
@@ -172,13 +194,13 @@ def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
             header = dict(exr.header())
             planes = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
     except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for corrupt data
-        raise ValueError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
+        raise InputError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
     if all(c in planes for c in _RGB):
         rgb = np.stack([planes.pop(c) for c in _RGB], axis=-1)
     elif "Y" in planes:
         rgb = planes.pop("Y")[:, :, None]
     else:
-        raise ValueError(f"{path}: no R,G,B or Y channels (has {sorted(planes)})")
+        raise InputError(f"{path}: no R,G,B or Y channels (has {sorted(planes)})")
     if not allow_nonfinite:
         _check_finite(rgb, path, "the colour channels")
     extra: dict[str, np.ndarray] = {}
@@ -245,7 +267,7 @@ def read_oiio(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
         raise FileNotFoundError(f"{path}: no such image file")
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: not a readable image: {oiio.geterror()}")
+        raise InputError(f"{path}: not a readable image: {oiio.geterror()}")
     try:
         spec = inp.spec()
         pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
@@ -254,5 +276,5 @@ def read_oiio(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
     finally:
         inp.close()
     if pixels is None or error:
-        raise ValueError(f"{path}: truncated or corrupt image: {error or 'no pixels read'}")
+        raise InputError(f"{path}: truncated or corrupt image: {error or 'no pixels read'}")
     return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), is_float

@@ -280,7 +280,7 @@ def clipped_neighbourhood(frame: np.ndarray, clip: float, radius: int) -> np.nda
     """Pixels within ``radius`` of a pixel that reaches ``clip`` in any channel.
 
     A demosaiced value interpolates the samples within the demosaicing support
-    (bilinear, :func:`hdr.raw.decode_raw`: the 3x3 neighbourhood, ``radius``
+    (bilinear, :func:`brdfrig.hdr.raw.decode_raw`: the 3x3 neighbourhood, ``radius``
     1), so next to a clipped sample it reads low while staying below the clip
     level.  Any channel, not only the same one.  With ``decode_raw``
     (bilinear, camera colour, no white balance) the damage stays in the
@@ -397,7 +397,7 @@ def estimate_times(
       (:func:`clipped_neighbourhood`, the pixels the merge weights out):
       demosaicing interpolates clipped samples into neighbours that stay
       below the clip level, biased low (``clip_radius=1`` covers the 3x3
-      support of bilinear demosaicing, :func:`hdr.raw.decode_raw`; 0 suits
+      support of bilinear demosaicing, :func:`brdfrig.hdr.raw.decode_raw`; 0 suits
       frames that were not demosaiced, in-camera demosaicing may need 2).
       Selecting on each frame's own values and ignoring neighbourhoods made
       the 4 s frame of a simulated DNG bracket look 3.19 s long;
@@ -569,7 +569,7 @@ def merge_bracket(
         any channel gets zero weight in that frame, as if saturated
         (:func:`clipped_neighbourhood`; also the exclusion of
         :func:`estimate_times`).  1 (default) covers bilinear demosaicing
-        (:func:`hdr.raw.decode_raw`): small lights clipped at 16x full scale
+        (:func:`brdfrig.hdr.raw.decode_raw`): small lights clipped at 16x full scale
         next to unclipped pixels (a 32x40 DNG bracket) merged up to 84% low at
         their demosaiced rim with 0, within 0.8% (14-bit quantisation) with 1.
         0 suits frames that were not demosaiced (every pixel measured

@@ -1,6 +1,6 @@
 """Chrome-ball light probe: unwrap to environment samples, calibrate, average rotations, resample to lat-long.
 
-Geometry is A's :mod:`hdr.envmap` (MATH.md): orthographic view along
+Geometry is A's :mod:`brdfrig.hdr.envmap` (MATH.md): orthographic view along
 ``v = (0, 0, 1)``, a ball pixel at normalised offset ``(dx, dy)`` from the
 centre has normal ``n = (dx, dy, sqrt(1 - dx^2 - dy^2))`` and shows the
 radiance arriving from ``w = 2 (n.v) n - v``; every pixel subtends ``4 / r^2``
@@ -35,7 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hdr import envmap
+from brdfrig.hdr import envmap
 
 __all__ = [
     "DEFAULT_RIM",
@@ -334,7 +334,7 @@ def average_rotations(
     images : sequence of K (H, W, C) arrays
         Linear probe images, same shape.
     circles : sequence of K (cx, cy, r), optional
-        Each capture's ball circle; detected (:func:`hdr.detect.detect_sphere`) when None.
+        Each capture's ball circle; detected (:func:`brdfrig.hdr.detect.detect_sphere`) when None.
     statistic : {"median", "trimmed"}
         Per-pixel median, or the mean of the middle half of the values
         (interquartile mean: more efficient against noise, still robust to
@@ -359,7 +359,7 @@ def average_rotations(
     if statistic not in ("median", "trimmed"):
         raise ValueError(f"average_rotations: statistic must be 'median' or 'trimmed', got {statistic!r}")
     if circles is None:
-        from hdr.detect import detect_sphere
+        from brdfrig.hdr.detect import detect_sphere
 
         circles = [detect_sphere(im) for im in images]
     if len(circles) != len(images):

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hdr.exr import read_oiio
+from brdfrig.hdr.exr import read_oiio
 
 __all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw"]
 
@@ -116,7 +116,7 @@ def read_frame(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
         Pixel values, 1.0 = saturation for integer formats.
     linear : bool
         True for raw and float files; False for integer TIFF/JPEG/PNG, whose
-        camera response may be non-linear (see :mod:`hdr.response`).
+        camera response may be non-linear (see :mod:`brdfrig.hdr.response`).
     """
     path = Path(path)
     if is_raw(path):

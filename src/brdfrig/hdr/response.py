@@ -15,7 +15,7 @@ against OpenCV's calibration on 8-bit data.
 
 The recovered curve is normalised so that full scale (code value 1.0)
 maps to linear 1.0: linearised frames are then in the units
-:func:`hdr.merge.merge_bracket` expects (``saturation=1``).
+:func:`brdfrig.hdr.merge.merge_bracket` expects (``saturation=1``).
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def recover_response(
     ----------
     frames : sequence of K (H, W, C) arrays
         Code values as fractions of full scale in [0, 1] (e.g. from
-        :func:`hdr.raw.read_frame`), static scene, same shape.
+        :func:`brdfrig.hdr.raw.read_frame`), static scene, same shape.
     times : (K,) float
         Exposure times in seconds.
     levels : int

@@ -1,1 +1,1 @@
-"""Device drivers behind small interfaces (camera, turntable) and their simulators."""
+"""Device drivers behind small interfaces: GRBL turntable over pyserial, gphoto2 and watched-folder cameras."""

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from brdfrig.errors import DeviceError
 
-class RigError(Exception):
-    """Base class of every device error; the CLI prints its message and exits non-zero."""
+
+class RigError(DeviceError):
+    """Base class of every device error; the CLI prints its message and exits 2."""
 
 
 class DeviceTimeout(RigError):

@@ -11,7 +11,7 @@ Field failures handled here (bounded, with a settle time between attempts):
 * ``GP_ERROR_MODEL_NOT_FOUND`` (-105, what ``init()`` raises when nothing is
   plugged in) and ``GP_ERROR_IO_USB_FIND`` (-52) -> "no camera found".
 
-The library's errors become :mod:`rig.errors` types with a message saying what to do.
+The library's errors become :mod:`brdfrig.rig.errors` types with a message saying what to do.
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from rig.camera import check_exposure, free_name
-from rig.errors import DeviceBusy, DeviceDisconnected, DeviceNotFound, DeviceRefused
+from brdfrig._atomic import temp_path
+from brdfrig.rig.camera import check_exposure, free_name
+from brdfrig.rig.errors import DeviceBusy, DeviceDisconnected, DeviceNotFound, DeviceRefused
 
 __all__ = ["GphotoCamera", "parse_choice"]
 
@@ -132,18 +133,13 @@ class GphotoCamera:
             raise OSError(f"capture destination {str(dest)!r} is not a directory")
         shot = self._call("capture", lambda: self._camera.capture(self.gp.GP_CAPTURE_IMAGE))
         target = free_name(dest, shot.name)
-        tmp = target.with_name(f".{target.name}.part")
+        with temp_path(target, overwrite=False) as tmp:
 
-        def download():
-            camera_file = self._camera.file_get(shot.folder, shot.name, self.gp.GP_FILE_TYPE_NORMAL)
-            camera_file.save(str(tmp))
+            def download():
+                camera_file = self._camera.file_get(shot.folder, shot.name, self.gp.GP_FILE_TYPE_NORMAL)
+                camera_file.save(str(tmp))
 
-        try:
             self._call(f"download {shot.folder}/{shot.name}", download)
-            os.replace(tmp, target)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
         return target
 
     # -- internals --------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import time
 
 import serial
 
-from rig.errors import DeviceDisconnected, DeviceNotFound, DeviceTimeout
+from brdfrig.rig.errors import DeviceDisconnected, DeviceNotFound, DeviceTimeout
 
 __all__ = ["SerialLink"]
 

@@ -1,7 +1,7 @@
 """Turntable interface and its GRBL 1.1 driver.
 
-The driver speaks the dialect documented in :mod:`rig.grbl_protocol` over a
-:class:`rig.serial_link.SerialLink`.  Its contract:
+The driver speaks the dialect documented in :mod:`brdfrig.rig.grbl_protocol` over a
+:class:`brdfrig.rig.serial_link.SerialLink`.  Its contract:
 
 * a position is reported (returned, or exposed by :attr:`position_deg`) only
   after two consecutive status reports say ``Idle`` at that position: while
@@ -9,10 +9,24 @@ The driver speaks the dialect documented in :mod:`rig.grbl_protocol` over a
 * every exchange has an overall deadline; lost replies and garbage on the line
   trigger a resynchronisation (drain until quiet, fresh status report) and a
   bounded number of re-sends, which is safe because every command it sends is
-  idempotent (absolute moves, homing, unlock, settings writes);
+  idempotent (absolute moves, homing, settings writes);
 * backlash is compensated by approaching every target from the same (+) side:
   a move that would end going - first goes ``backlash_deg`` (plus a margin)
-  below the target;
+  below the target.  The side is known only after a *clean* final move: its
+  line sent once, its ``ok`` received, nothing garbled, no resynchronisation,
+  starting from a confirmed position below the target.  A resent or
+  resynchronised move may have run as another move first (line noise can turn
+  ``X-67.15`` into ``X967.15`` and lose its ``ok``), so its last segment may
+  have run downward: the driver then approaches again from below;
+* homing is confirmed only by positive evidence: a status report in the
+  ``Home`` state (which only a running homing cycle produces; the driver polls
+  while it waits for the cycle's ``ok``) followed by two reports ``Idle`` at 0.
+  A garbled ``$H`` (e.g. ``$X``, which unlocks a freshly powered board at
+  whatever angle it stands) produces no ``Home`` report and is homed again;
+* every retry, resynchronisation and re-approach is reported to ``journal``
+  (the session runner writes them to the session journal);
+* the port is opened exclusively: a second process gets
+  :class:`brdfrig.rig.errors.DeviceBusy`;
 * any failure during a move (timeout, stall, alarm, disconnect, Ctrl-C) stops
   the table (feed hold ``!``, then soft reset ``0x18``, which keeps the
   position when the hold completed) before the typed error propagates.
@@ -27,11 +41,11 @@ from __future__ import annotations
 import math
 import threading
 import time
-from typing import Protocol, runtime_checkable
+from typing import Callable, Protocol, runtime_checkable
 
-from rig import grbl_protocol as gp
-from rig.errors import DeviceDisconnected, DeviceNotFound, DeviceRefused, DeviceTimeout, RigError
-from rig.serial_link import SerialLink
+from brdfrig.rig import grbl_protocol as gp
+from brdfrig.rig.errors import DeviceDisconnected, DeviceNotFound, DeviceRefused, DeviceTimeout, RigError
+from brdfrig.rig.serial_link import SerialLink
 
 __all__ = ["Turntable", "GrblTurntable"]
 
@@ -105,6 +119,11 @@ class GrblTurntable:
         Pause between those attempts.
     resync_quiet_s : float
         Quiet time that ends a resynchronisation drain.
+    journal : callable, optional
+        ``journal(event, **fields)`` is called for every retry, resynchronisation
+        and re-approach (events ``turntable_resync``, ``turntable_status_retry``,
+        ``turntable_reapproach``, ``turntable_home_retry``,
+        ``turntable_reconnect``), e.g. ``SessionStore.append``.
     """
 
     def __init__(
@@ -124,6 +143,7 @@ class GrblTurntable:
         reconnect_attempts: int = 3,
         reconnect_delay_s: float = 0.5,
         resync_quiet_s: float = 0.05,
+        journal: Callable[..., object] | None = None,
     ) -> None:
         self.steps_per_degree = _positive("steps_per_degree", steps_per_degree)
         if isinstance(backlash_deg, bool) or not isinstance(backlash_deg, (int, float)) or not (
@@ -147,6 +167,7 @@ class GrblTurntable:
         self.retries = retries
         self.reconnect_attempts = reconnect_attempts
         self.link = SerialLink(port, baud)
+        self.journal = journal
         self.firmware = ""
         self.rate_deg_s = 1.0
         self._lock = threading.RLock()
@@ -173,6 +194,10 @@ class GrblTurntable:
     def _quantise(self, angle_deg: float) -> float:
         return round(angle_deg * self.steps_per_degree) / self.steps_per_degree
 
+    def _note(self, event: str, **fields) -> None:
+        if self.journal is not None:
+            self.journal(event, **fields)
+
     def _forget(self) -> None:
         self._homed = False
         self._position = None
@@ -195,9 +220,10 @@ class GrblTurntable:
                 try:
                     self.link.open()
                     break
-                except DeviceNotFound:
+                except DeviceNotFound as exc:
                     if attempt + 1 == self.reconnect_attempts:
                         raise
+                    self._note("turntable_reconnect", attempt=attempt + 1, reason=str(exc))
                     time.sleep(self.reconnect_delay_s)
             try:
                 self._soft_reset()
@@ -231,15 +257,19 @@ class GrblTurntable:
                 if self._status().state == "Alarm":
                     self._soft_reset()  # a hard alarm ignores everything until reset
                 self._forget()
-                for _ in range(self.retries + 1):
-                    replies = self._command("$H", timeout=self.homing_timeout_s)
-                    # line noise can turn "$H" into "$X" (unlock, no homing): GRBL then says "Unlocked"
-                    if not any("Unlocked" in r.text for r in replies):
+                for attempt in range(self.retries + 1):
+                    why = self._homing_cycle()
+                    if why is None and self._confirm_idle_at(
+                        0.0, time.monotonic() + self.reply_timeout_s * (self.retries + 1)
+                    ):
                         break
+                    why = why or "no two status reports Idle at 0 after the cycle"
+                    self._note("turntable_home_retry", attempt=attempt + 1, reason=why)
                 else:
-                    raise DeviceRefused("the controller kept unlocking instead of homing: check the serial line")
-                if not self._confirm_idle_at(0.0, time.monotonic() + self.reply_timeout_s * (self.retries + 1)):
-                    raise DeviceRefused("the controller did not report Idle at 0 after homing")
+                    raise DeviceRefused(
+                        f"no evidence that the controller homed after {self.retries + 1} attempts ({why}): "
+                        "check the serial line and the homing switch"
+                    )
             except BaseException:
                 self._halt_quietly()
                 raise
@@ -252,7 +282,7 @@ class GrblTurntable:
         """Rotate to an absolute angle (degrees), wait, verify, and return the confirmed angle.
 
         The target is rounded to whole motor steps.  Raises a
-        :class:`rig.errors.RigError` subclass (the table is then stopped and
+        :class:`brdfrig.rig.errors.RigError` subclass (the table is then stopped and
         :attr:`position_deg` tells what is still known) or ``ValueError`` for a
         non-finite angle.
         """
@@ -269,17 +299,23 @@ class GrblTurntable:
             self._position = None
             self._loaded_positive = False
             try:
-                for _ in range(self.retries + 1):
+                for attempt in range(self.retries + 1):
                     if self.backlash_deg > 0 and (start is None or target < start - self._tolerance or not loaded):
                         margin = max(2.0 / self.steps_per_degree, 0.1 * self.backlash_deg)
-                        reached, start = self._move_verified(start, self._quantise(target - self.backlash_deg - margin))
+                        below = self._quantise(target - self.backlash_deg - margin)
+                        reached, start, _ = self._move_verified(start, below)
                         if not reached:  # idle somewhere else (a corrupted command), play side unknown
                             loaded = False
+                            self._note("turntable_reapproach", target_deg=target, attempt=attempt + 1,
+                                       reason=f"idle at {start:.4f} deg instead of {below:.4f} deg")
                             continue
-                    reached, start = self._move_verified(start, target)
-                    if reached:
+                    reached, start, clean = self._move_verified(start, target)
+                    if reached and (clean or self.backlash_deg == 0):
                         break
-                    loaded = False  # idle somewhere else, arrived from either side: approach again
+                    loaded = False  # arrived from either side: approach again from below
+                    self._note("turntable_reapproach", target_deg=target, attempt=attempt + 1,
+                               reason="the final move was resent or resynchronised: approach side unknown"
+                               if reached else f"idle at {start:.4f} deg instead of {target:.4f} deg")
                 else:
                     raise DeviceRefused(
                         f"controller stays idle at {start:.4f} deg instead of {target:.4f} deg "
@@ -295,7 +331,7 @@ class GrblTurntable:
     def stop(self) -> None:
         """Stop now (feed hold, then soft reset) and confirm the controller is stopped.
 
-        Raises a :class:`rig.errors.RigError` when the controller cannot be reached.
+        Raises a :class:`brdfrig.rig.errors.RigError` when the controller cannot be reached.
         """
         with self._lock:
             self._halt()
@@ -361,10 +397,16 @@ class GrblTurntable:
         self._homed = False
 
     def _settings(self) -> dict[int, float]:
-        return {r.setting[0]: r.setting[1] for r in self._command("$$") if r.kind == "setting"}
+        replies, _ = self._command("$$")
+        return {r.setting[0]: r.setting[1] for r in replies if r.kind == "setting"}
 
-    def _command(self, line: str, timeout: float | None = None) -> list[gp.Reply]:
-        """Send one line and return the lines before its ``ok``; re-send after a lost or garbled reply."""
+    def _command(self, line: str, timeout: float | None = None) -> tuple[list[gp.Reply], bool]:
+        """Send one line; return the lines before its ``ok`` and whether the exchange was clean.
+
+        Clean means sent once, answered ``ok`` with nothing garbled and no
+        resynchronisation.  A lost or garbled reply, or a parse-class error,
+        is journalled, resynchronised and re-sent (at most ``retries`` times).
+        """
         timeout = self.reply_timeout_s if timeout is None else timeout
         for attempt in range(self.retries + 1):
             self.link.write_line(line)
@@ -374,9 +416,10 @@ class GrblTurntable:
                 while True:
                     reply = gp.parse_reply(self.link.readline(deadline))
                     if reply.kind == "ok":
-                        return info
+                        return info, attempt == 0
                     if reply.kind == "error":
                         if reply.code in _RETRYABLE_ERRORS and attempt < self.retries:
+                            why = f"error:{reply.code}"
                             break
                         raise DeviceRefused(
                             f"controller refused {line!r}: error:{reply.code} ({gp.describe_error(reply.code)})"
@@ -387,10 +430,12 @@ class GrblTurntable:
                             f"controller raised ALARM:{reply.code} ({gp.describe_alarm(reply.code)}) on {line!r}"
                         )
                     if reply.kind == "garbage":
+                        why = f"garbled reply {reply.text!r}"
                         break
                     info.append(reply)
             except DeviceTimeout:
-                pass
+                why = "no reply"
+            self._note("turntable_resync", command=line, attempt=attempt + 1, reason=why)
             self._resync()
         raise DeviceTimeout(
             f"controller on {self.link.port!r} did not acknowledge {line!r} after {self.retries + 1} attempts"
@@ -416,6 +461,7 @@ class GrblTurntable:
                     elif reply.kind == "greeting":
                         self._forget()  # the controller reset by itself: nothing we knew holds
             except DeviceTimeout:
+                self._note("turntable_status_retry", reason="no status report")
                 self.link.drain(self.resync_quiet_s, self.reply_timeout_s)
         raise DeviceTimeout(f"no status report from the controller on {self.link.port!r}")
 
@@ -426,20 +472,21 @@ class GrblTurntable:
         what = f"ALARM:{code} ({gp.describe_alarm(code)})" if code is not None else "alarm state"
         return DeviceRefused(f"turntable controller is in {what} while {doing}; home it again")
 
-    def _move_verified(self, start: float | None, target: float) -> tuple[bool, float]:
+    def _move_verified(self, start: float | None, target: float) -> tuple[bool, float, bool]:
         """Command an absolute move to ``target`` and wait until the controller is idle.
 
-        Returns ``(True, target)`` once two status reports confirm it idle at the
-        target, or ``(False, where)`` when it went idle elsewhere (a command
-        corrupted on the line: the caller re-approaches).  Raises on timeout,
-        stall or alarm.
+        Returns ``(True, target, clean)`` once two status reports confirm it idle
+        at the target, or ``(False, where, clean)`` when it went idle elsewhere
+        (a command corrupted on the line: the caller re-approaches); ``clean``
+        tells whether the command's exchange was clean (see :meth:`_command`).
+        Raises on timeout, stall or alarm.
         """
         command = f"G90 G0 X{target:.6f}"
         distance = abs(target - start) if start is not None else 360.0
         allowed = 2.0 * distance / self.rate_deg_s + self.move_margin_s
         deadline = time.monotonic() + allowed
         self._last_alarm = None
-        self._command(command)
+        _, clean = self._command(command)
         last_pos, last_change = None, time.monotonic()
         while True:
             now = time.monotonic()
@@ -452,9 +499,9 @@ class GrblTurntable:
                 raise self._alarm_error(f"moving to {target:.4f} deg")
             if status.state == "Idle":
                 if abs(status.mpos - target) > self._tolerance:
-                    return False, status.mpos
+                    return False, status.mpos, clean
                 if self._confirm_idle_at(target, deadline):
-                    return True, target
+                    return True, target, clean
                 continue
             if status.state in ("Run", "Jog", "Home"):
                 if status.mpos != last_pos:

@@ -6,7 +6,7 @@ the operator's click or on its own schedule.  This backend only waits for the
 file: a *new* name (not present when the backend opened or at the previous
 capture), with a camera-file extension, whose size and modification time have
 not changed for ``stable_s`` and which can be opened; it then copies it into
-the destination (temporary name + ``os.replace``) and leaves the original
+the destination (written atomically by ``brdfrig._atomic``) and leaves the original
 where the vendor software expects it.
 """
 
@@ -19,8 +19,9 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from rig.camera import check_exposure, free_name
-from rig.errors import DeviceTimeout
+from brdfrig._atomic import temp_path
+from brdfrig.rig.camera import check_exposure, free_name
+from brdfrig.rig.errors import DeviceTimeout
 
 __all__ = ["WatchFolderCamera", "CAMERA_EXTENSIONS"]
 
@@ -124,12 +125,7 @@ class WatchFolderCamera:
 
     def _take(self, name: str, dest: Path) -> Path:
         target = free_name(dest, name)
-        tmp = target.with_name(f".{target.name}.part")
-        try:
+        with temp_path(target, overwrite=False) as tmp:
             shutil.copy2(self.watch_dir / name, tmp)  # open + read proves the writer let go of it
-            os.replace(tmp, target)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
         self._seen.add(name)
         return target

@@ -1,1 +1,1 @@
-"""Capture sessions: plan, run on the rig, store, resume, refit; the ``brdfrig`` CLI."""
+"""Capture sessions: configuration, plans, the crash-safe store, run/resume, the offline pipeline, figures."""

@@ -25,7 +25,7 @@ carries camera, probe and samples: scene ``s`` is the table at
 ``carries = "samples"`` the table carries the probe and samples only: each
 scene is set up by the operator (the run pauses and prompts) and the probe is
 shot at every angle of ``probe_rotations`` so that its blemishes move and can
-be removed (``hdr.probe.average_rotations``).
+be removed (``brdfrig.hdr.probe.average_rotations``).
 
 Every error names the file, the table, the key and what is allowed, e.g.
 ``unknown key 'exposre' in [plan] of plan.toml; did you mean 'exposure'?``.
@@ -39,6 +39,9 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
+
+from brdfrig.errors import ConfigError
+from brdfrig.ranges import Range
 
 __all__ = [
     "ConfigError",
@@ -64,10 +67,10 @@ FIT_SOLVERS = ("paper", "joint", "tikhonov")
 CAMERA_BACKENDS = ("gphoto2", "watch", "sim")
 TURNTABLE_BACKENDS = ("grbl", "sim", "none")
 CARRIES = ("samples", "rig")
-
-
-class ConfigError(ValueError):
-    """A configuration file is missing, unreadable or invalid; the message names file, table and key."""
+MAX_EXPOSURE_S = 3600.0  # longest exposure time (s) a plan may ask for
+_EXPOSURE_TIME = Range(0, MAX_EXPOSURE_S, open_lo=True)
+_ANGLE = Range(-360, 360)
+_PIXELS = Range(-1e5, 1e5)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -78,8 +81,8 @@ class ConfigError(ValueError):
 class TurntableConfig:
     """Turntable settings (degrees, seconds).
 
-    ``backend = "sim"`` runs ``rig.grbl_sim.GrblSimulator`` on a pseudo-terminal
-    and drives it with the real ``rig.turntable.GrblTurntable`` driver;
+    ``backend = "sim"`` runs ``brdfrig.sim.grbl.GrblSimulator`` on a pseudo-terminal
+    and drives it with the real ``brdfrig.rig.turntable.GrblTurntable`` driver;
     ``"none"`` means there is no table (every angle must then be 0).
     """
 
@@ -145,7 +148,7 @@ class PlanConfig:
     ``exposure`` is ``"auto"`` or a tuple of exposure times in seconds.  With
     ``"auto"`` a metering shot at ``meter_time_s`` decides, per scene, the
     bracket (steps of ``stop_step`` stops, at most ``max_exposures``) that
-    reaches ``target_snr`` over the scene's dynamic range (``capture.plan``).
+    reaches ``target_snr`` over the scene's dynamic range (``brdfrig.session.plan``).
     """
 
     scenes: int = 1
@@ -163,7 +166,7 @@ class PlanConfig:
 
 @dataclass(frozen=True)
 class FitPreset:
-    """Fit settings passed to ``fit.fitter.fit_brdf``."""
+    """Fit settings passed to ``brdfrig.fit.fitter.fit_brdf``."""
 
     model: str = "auto"
     lmax: int = 8
@@ -209,37 +212,13 @@ def _is_number(v: Any) -> bool:
 
 
 def _number(lo: float | None = None, hi: float | None = None, *, open_lo: bool = False) -> Checker:
-    def check(v: Any, where: str) -> float:
-        rng = _range_text(lo, hi, open_lo)
-        if not _is_number(v):
-            raise ConfigError(f"{where} must be a number{rng}, got {v!r}")
-        if lo is not None and (v < lo or (open_lo and v == lo)) or hi is not None and v > hi:
-            raise ConfigError(f"{where} must be{rng}, got {v!r}")
-        return float(v)
-
-    return check
+    rng = Range(lo, hi, open_lo=open_lo)
+    return lambda v, where: rng.check(v, where, ConfigError)
 
 
 def _integer(lo: int | None = None, hi: int | None = None) -> Checker:
-    def check(v: Any, where: str) -> int:
-        rng = _range_text(lo, hi, False)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise ConfigError(f"{where} must be an integer{rng}, got {v!r}")
-        if lo is not None and v < lo or hi is not None and v > hi:
-            raise ConfigError(f"{where} must be an integer{rng}, got {v!r}")
-        return v
-
-    return check
-
-
-def _range_text(lo, hi, open_lo) -> str:
-    if lo is not None and hi is not None:
-        return f" in {'(' if open_lo else '['}{lo}, {hi}]"
-    if lo is not None:
-        return f" {'>' if open_lo else '>='} {lo}"
-    if hi is not None:
-        return f" <= {hi}"
-    return ""
+    rng = Range(lo, hi, integer=True)
+    return lambda v, where: rng.check(v, where, ConfigError)
 
 
 def _choice(options: tuple[str, ...]) -> Checker:
@@ -269,8 +248,9 @@ def _name(v: Any, where: str) -> str:
 
 def _angles(*, nonempty: bool) -> Checker:
     def check(v: Any, where: str) -> tuple[float, ...]:
-        if not isinstance(v, list) or not all(_is_number(a) for a in v):
-            raise ConfigError(f"{where} must be a list of table angles in degrees, e.g. [0, 90, 180, 270], got {v!r}")
+        if not isinstance(v, list) or not all(_is_number(a) and _ANGLE.contains(a) for a in v):
+            raise ConfigError(f"{where} must be a list of table angles in degrees{_ANGLE.text()}, "
+                              f"e.g. [0, 90, 180, 270], got {v!r}")
         if nonempty and not v:
             raise ConfigError(
                 f"{where} is empty: zero rotations would shoot nothing; give at least one table angle "
@@ -286,19 +266,19 @@ def _angles(*, nonempty: bool) -> Checker:
 def _exposure(v: Any, where: str) -> str | tuple[float, ...]:
     if v == "auto":
         return "auto"
-    if isinstance(v, list) and v and all(_is_number(t) and t > 0 for t in v):
+    if isinstance(v, list) and v and all(_is_number(t) and _EXPOSURE_TIME.contains(t) for t in v):
         if len(set(v)) != len(v):
             raise ConfigError(f"{where} repeats an exposure time: {v!r}")
         return tuple(sorted(float(t) for t in v))
     raise ConfigError(
-        f"{where} must be \"auto\" or a non-empty list of exposure times in seconds > 0 "
+        f"{where} must be \"auto\" or a non-empty list of exposure times in seconds{_EXPOSURE_TIME.text()} "
         f"(e.g. [0.001, 0.004, 0.016]), got {v!r}"
     )
 
 
 def _circle(v: Any, where: str) -> tuple[float, float, float]:
-    if not (isinstance(v, list) and len(v) == 3 and all(_is_number(c) for c in v)) or v[2] <= 0:
-        raise ConfigError(f"{where} must be [cx, cy, r] in pixels with r > 0, got {v!r}")
+    if not (isinstance(v, list) and len(v) == 3 and all(_is_number(c) and _PIXELS.contains(c) for c in v)) or v[2] <= 0:
+        raise ConfigError(f"{where} must be [cx, cy, r] in pixels with r > 0 (each{_PIXELS.text()}), got {v!r}")
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
@@ -323,21 +303,21 @@ def _check_keys(table: dict, schema: dict[str, Checker], section: str, source: s
 _TURNTABLE_SCHEMA: dict[str, Checker] = {
     "backend": _choice(TURNTABLE_BACKENDS),
     "port": _string,
-    "baud": _integer(1),
-    "steps_per_degree": _number(0, open_lo=True),
+    "baud": _integer(300, 4_000_000),
+    "steps_per_degree": _number(0, 1e5, open_lo=True),
     "backlash_deg": _number(0, 45),
-    "speed_deg_s": _number(0, open_lo=True),
-    "timeout_s": _number(0, open_lo=True),
+    "speed_deg_s": _number(0.1, 3600),
+    "timeout_s": _number(0, 3600, open_lo=True),
 }
 _CAMERA_SCHEMA: dict[str, Checker] = {
     "backend": _choice(CAMERA_BACKENDS),
-    "iso": _integer(1),
-    "f_number": _number(0, open_lo=True),
+    "iso": _integer(1, 10_000_000),
+    "f_number": _number(0.5, 256),
     "watch_dir": _string,
-    "timeout_s": _number(0, open_lo=True),
-    "overhead_s": _number(0),
-    "full_well_e": _number(1),
-    "read_noise_e": _number(0),
+    "timeout_s": _number(0, 3600, open_lo=True),
+    "overhead_s": _number(0, 600),
+    "full_well_e": _number(1, 1e7),
+    "read_noise_e": _number(0, 1e4),
 }
 _RIG_SCHEMA: dict[str, Checker] = {
     "carries": _choice(CARRIES),
@@ -357,10 +337,10 @@ _PLAN_SCHEMA: dict[str, Checker] = {
     "probe_rotations": _angles(nonempty=True),
     "exposure": _exposure,
     "target_snr": _number(1, 1000),
-    "meter_time_s": _number(0, open_lo=True),
+    "meter_time_s": _number(0, MAX_EXPOSURE_S, open_lo=True),
     "stop_step": _number(0.33, 4),
     "max_exposures": _integer(1, 20),
-    "settle_s": _number(0),
+    "settle_s": _number(0, 600),
     "probe": _table,
     "samples": lambda v, where: v,  # checked item by item below
 }

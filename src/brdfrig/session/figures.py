@@ -37,11 +37,11 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     ----------
     path : path-like
         Output ``.png``.
-    scenes : list of fit.scene.Scene
+    scenes : list of brdfrig.fit.scene.Scene
         The sample's scenes (lighting + observed pixels) as given to the fitter.
-    pixels : hdr.sphere.SpherePixels
+    pixels : brdfrig.hdr.sphere.SpherePixels
         Row/column of each of the scenes' pixels (same order as ``Scene.normals``).
-    brdf : fit.brdf.FittedBRDF
+    brdf : brdfrig.fit.brdf.FittedBRDF
         The fitted BRDF (rendered with ``brdf.predict``).
     title : str
         Figure title (sample name, model, error).
@@ -87,7 +87,7 @@ def save_png(fig, path: str | Path, *, dpi: int = 100) -> Path:
     """Render a matplotlib figure to PNG, write it atomically (never a partial file) and close the figure."""
     import matplotlib.pyplot as plt
 
-    from capture.store import atomic_write_bytes
+    from brdfrig._atomic import write_bytes as atomic_write_bytes
 
     buf = io.BytesIO()
     try:

@@ -230,10 +230,13 @@ def sample_scenes(config: SessionConfig, merged: dict[tuple[int, float], MergedF
 
 
 def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progress: bool = True,
-                 echo: Callable[[str], None] = print, figures: bool = True) -> PipelineResult:
+                 echo: Callable[[str], None] = print, figures: bool = True,
+                 batch_id: str | None = None) -> PipelineResult:
     """Verify, merge (cached), build the scenes, fit every sample, and write BRDF files, figures and stats.
 
-    ``figures=False`` skips the PNG figures (``SampleResult.figure_path`` is then None).
+    ``figures=False`` skips the PNG figures (``SampleResult.figure_path`` is then None);
+    ``batch_id`` is stored in ``stats.json`` (see :mod:`brdfrig.session.refit`).
+    The caller holds the session's writer lock.
     """
     from tqdm import tqdm
 
@@ -253,7 +256,7 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     per_sample = sample_scenes(config, merged, envs)
     results_dir = store.staging_results_dir()  # renamed to results/fit-NNN only once complete
     result = PipelineResult(results_dir, merged=len(merged), merged_from_cache=n_cached, scenes=envs)
-    stats_all = {"session": str(store.root), "fit": asdict(fit), "samples": {}}
+    stats_all = {"session": str(store.root), "fit": asdict(fit), "batch": batch_id, "samples": {}}
     for name, (scenes, pixels) in per_sample.items():
         echo(f"fitting {name}: {len(scenes)} scene(s), model {fit.model}, lmax {fit.lmax}, pmax {fit.pmax}, "
              f"solver {fit.solver}")

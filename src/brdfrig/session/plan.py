@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from capture.config import SessionConfig
+from brdfrig.session.config import SessionConfig
 
 __all__ = [
     "Shot",
@@ -129,10 +129,10 @@ def scenes_needed(model: str, lmax: int, pmax: int) -> dict:
     """Ask the fitter's identifiability analysis how many differing scenes ``model`` at ``lmax`` needs.
 
     Returns ``{"scenes": int, "text": str}``.  Only the full model needs several
-    scenes (``fit.identifiability.scenes_needed``); ``auto`` asks for what the
+    scenes (``brdfrig.fit.identifiability.scenes_needed``); ``auto`` asks for what the
     full model needs, since it picks the richest model the data determine.
     """
-    from fit.identifiability import scenes_needed as full_scenes
+    from brdfrig.fit.identifiability import scenes_needed as full_scenes
 
     full = full_scenes(lmax)
     if model in ("full", "auto"):
@@ -209,7 +209,7 @@ def meter_range(frame: np.ndarray, time_s: float, full_well_e: float, mask: np.n
     Parameters
     ----------
     frame : (H, W, C) float
-        Decoded linear frame, 1.0 = saturation (``hdr.raw.decode_raw``).
+        Decoded linear frame, 1.0 = saturation (``brdfrig.hdr.raw.decode_raw``).
     time_s : float
         Its exposure time.
     full_well_e : float
@@ -247,7 +247,7 @@ def auto_bracket(e_lo: float, e_hi: float, *, full_well_e: float, read_noise_e: 
     ``target_snr``; the bracket stops once ``e_lo`` reaches ``target_snr`` (or at
     ``max_exposures``).  Consecutive times are at most ``max_gap_stops`` apart, so
     that neighbouring frames share well-exposed pixels (the merge checks the
-    exposure ratios on them: ``hdr.merge.estimate_times``).  Returns the times,
+    exposure ratios on them: ``brdfrig.hdr.merge.estimate_times``).  Returns the times,
     shortest first.
     """
     if not (e_hi >= e_lo > 0):

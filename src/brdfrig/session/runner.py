@@ -2,7 +2,7 @@
 
 :func:`run_session` walks the plan scene by scene, table angle by table angle,
 exposure by exposure, storing each camera file the moment it arrives
-(``capture.store``).  What counts as done is what the manifest lists and
+(``brdfrig.session.store``).  What counts as done is what the manifest lists and
 verifies, so a session killed at any point (power cut, SIGKILL, Ctrl-C, full
 disk) is finished by :func:`resume_session` without reshooting anything
 complete: files that fail their checksum are set aside (kept on disk,
@@ -26,9 +26,9 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from capture.config import ConfigError, SessionConfig, stored_session_config
-from capture.plan import Plan, build_plan, meter_bracket, shot_key
-from capture.store import DiskFullError, SessionStore
+from brdfrig.session.config import ConfigError, SessionConfig, stored_session_config
+from brdfrig.session.plan import Plan, build_plan, meter_bracket, shot_key
+from brdfrig.session.store import DiskFullError, SessionStore
 
 __all__ = ["run_session", "resume_session", "open_rig", "completed_shots", "frame_mask", "RAW_SUBDIR"]
 
@@ -38,17 +38,17 @@ def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
     """Connect the configured turntable and camera; yield ``(turntable, camera)``, disconnect on exit.
 
     ``sim`` backends run D's GRBL firmware simulator on a pseudo-terminal, driven
-    by the real :class:`rig.turntable.GrblTurntable`, and the simulated camera
+    by the real :class:`brdfrig.rig.turntable.GrblTurntable`, and the simulated camera
     reading the simulator's physical table angle.  The turntable is stopped on
     the way out, whatever happened.
     """
-    from rig.turntable import GrblTurntable
+    from brdfrig.rig.turntable import GrblTurntable
 
     tt_cfg, cam_cfg = config.rig.turntable, config.rig.camera
     with contextlib.ExitStack() as stack:
         table_state = None
         if tt_cfg.backend == "sim":
-            from rig.grbl_sim import GrblSimulator
+            from brdfrig.sim.grbl import GrblSimulator
 
             sim = stack.enter_context(GrblSimulator(**_sim_table_options(config)))
             port, table_state = sim.port, sim
@@ -62,16 +62,16 @@ def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
             )
             turntable.home()
         if cam_cfg.backend == "sim":
-            from rig.sim_camera import SimulatedCamera
+            from brdfrig.sim.camera import SimulatedCamera
 
             bench = sim_bench(config)
             camera = SimulatedCamera(bench, table_state, **_sim_camera_options(config))
         elif cam_cfg.backend == "gphoto2":
-            from rig.gphoto import GphotoCamera
+            from brdfrig.rig.gphoto import GphotoCamera
 
             camera = GphotoCamera()
         else:
-            from rig.watch_folder import WatchFolderCamera
+            from brdfrig.rig.watch_folder import WatchFolderCamera
 
             camera = WatchFolderCamera(cam_cfg.watch_dir, timeout_s=cam_cfg.timeout_s)
         stack.enter_context(camera)
@@ -82,15 +82,15 @@ _SIM_TABLE_KEYS = ("table_start_deg",)
 
 
 def sim_bench(config: SessionConfig):
-    """The ``rig.sim_bench.SimBench`` described by ``[rig.sim]`` of a session config."""
+    """The ``brdfrig.sim.bench.SimBench`` described by ``[rig.sim]`` of a session config."""
     return make_sim_bench(config.rig.sim, config.rig.carries, config.source)
 
 
 def make_sim_bench(options: dict, carries: str, source: str):
-    """A ``rig.sim_bench.SimBench`` from ``[rig.sim]``-style options (unknown keys named, with ``source``)."""
+    """A ``brdfrig.sim.bench.SimBench`` from ``[rig.sim]``-style options (unknown keys named, with ``source``)."""
     import inspect
 
-    from rig.sim_bench import SimBench
+    from brdfrig.sim.bench import SimBench
 
     opts = {k: v for k, v in options.items() if k not in _SIM_TABLE_KEYS}
     allowed = [p for p in inspect.signature(SimBench).parameters if p != "carries"]
@@ -124,7 +124,7 @@ def _sim_camera_options(config: SessionConfig) -> dict:
 def _seed_for_shot(camera, key: str) -> None:
     """Make a simulated camera's noise a function of the shot's identity, not of its capture count.
 
-    ``rig.sim_camera.SimulatedCamera`` draws noise from ``(seed, captures)``;
+    ``brdfrig.sim.camera.SimulatedCamera`` draws noise from ``(seed, captures)``;
     resetting ``captures`` to a number derived from the shot key means a
     resumed session writes exactly the files an uninterrupted one would.
     Real cameras have no ``captures`` attribute and are left alone.
@@ -190,7 +190,7 @@ class _Runner:
                 k in self.done for k in rec["meter_keys"]
             ):
                 return tuple(rec["times"])
-        from hdr.raw import read_frame
+        from brdfrig.hdr.raw import read_frame
 
         self._move(angle)
         keys = []
@@ -352,6 +352,6 @@ def resume_session(session_dir: str | Path, *, prompt: Callable[[str], str] | No
 
 
 def _describe(plan: Plan) -> str:
-    from capture.plan import describe_plan
+    from brdfrig.session.plan import describe_plan
 
     return describe_plan(plan)

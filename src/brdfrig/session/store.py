@@ -28,8 +28,10 @@ Guarantees:
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import errno
+import fcntl
 import hashlib
 import json
 import os
@@ -65,6 +67,7 @@ RAW_DIR = "raw"
 INCOMING_DIR = ".incoming"
 CACHE_DIR = "cache"
 RESULTS_DIR = "results"
+LOCK_FILE = ".lock"
 
 
 def _pid_alive(staging: Path) -> bool:
@@ -200,6 +203,33 @@ class SessionStore:
         for sub in (RAW_DIR, INCOMING_DIR, CACHE_DIR, RESULTS_DIR):
             (root / sub).mkdir(exist_ok=True)
         return cls(root, info, manifest)
+
+    # ------------------------------------------------------------------------------------ writers
+    @contextlib.contextmanager
+    def locked(self):
+        """Hold the session's writer lock (``DIR/.lock``, an exclusive ``flock``) for the ``with`` block.
+
+        Every writer (capture run, resume, refit) holds it; the kernel releases it when the
+        process dies, so a killed writer never leaves the session locked.
+
+        Raises
+        ------
+        StoreError
+            If another process holds it: "session DIR in use by PID N".
+        """
+        fd = os.open(self.root / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+                raise StoreError(f"session {self.root} in use by PID {holder}: wait for it to finish "
+                                 "(nothing was changed)") from None
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            yield self
+        finally:
+            os.close(fd)  # releases the lock
 
     # ------------------------------------------------------------------------------------ journal
     def append(self, event: str, **fields) -> dict:

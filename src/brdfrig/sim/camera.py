@@ -9,8 +9,8 @@ models a sensor:
   Poisson shot noise, Gaussian read noise ``read_noise_e``;
 * ISO gain ``iso / 100`` from electrons to raw units, black level, white level,
   clipping, 16-bit integers;
-* output ``"dng"``: an RGGB Bayer mosaic through :func:`hdr.dng.write_dng` (linear raw,
-  what :func:`hdr.raw.decode_raw` reads back as ``radiance * t`` at ISO 100, f/8);
+* output ``"dng"``: an RGGB Bayer mosaic through :func:`brdfrig.hdr.dng.write_dng` (linear raw,
+  what :func:`brdfrig.hdr.raw.decode_raw` reads back as ``radiance * t`` at ISO 100, f/8);
   or ``"tiff"``: a demosaiced 16-bit RGB TIFF with an optional non-linear response
   ``v ** (1 / response_gamma)`` (an in-camera JPEG-like curve), EXIF inside.
 
@@ -26,8 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.camera import check_exposure, free_name
-from rig.sim_bench import SimBench
+from brdfrig._atomic import temp_path
+from brdfrig.rig.camera import check_exposure, free_name
+from brdfrig.sim.bench import SimBench
 
 __all__ = ["SimulatedCamera"]
 
@@ -35,14 +36,14 @@ _CFA_CHANNEL = np.array([[0, 1], [1, 2]])  # RGGB
 
 
 class SimulatedCamera:
-    """Camera backend over a :class:`rig.sim_bench.SimBench`.
+    """Camera backend over a :class:`brdfrig.sim.bench.SimBench`.
 
     Parameters
     ----------
     bench : SimBench
         What is photographed.
     table_state : object with ``table_angle_deg``, optional
-        The table simulator (:class:`rig.grbl_sim.GrblSimulator`): its physical angle is read at
+        The table simulator (:class:`brdfrig.sim.grbl.GrblSimulator`): its physical angle is read at
         each capture.  None: a bench without a table (angle 0).
     full_well_e, read_noise_e : float
         Electrons at the white level (ISO 100), read-noise sigma in electrons.
@@ -133,7 +134,7 @@ class SimulatedCamera:
         value = signal / self.full_well_e * gain  # 1.0 = white level
         span = self.white_level - self.black_level
         if self.file_format == "dng":
-            from hdr.dng import write_dng
+            from brdfrig.hdr.dng import write_dng
 
             raw = np.clip(np.round(self.black_level + value * span), 0, self.white_level).astype(np.uint16)
             path = free_name(dest, f"SIM_{self.captures:05d}.dng")
@@ -146,7 +147,7 @@ class SimulatedCamera:
 
     @staticmethod
     def _write_tiff(path: Path, rgb16: np.ndarray, t: float, iso: float, f: float) -> Path:
-        """16-bit RGB TIFF with the exposure tags (EXIF numbering, in IFD0), via a temporary name + rename."""
+        """16-bit RGB TIFF with the exposure tags (EXIF numbering, in IFD0), written atomically."""
         from fractions import Fraction
 
         import tifffile
@@ -159,11 +160,6 @@ class SimulatedCamera:
                 (33437, "2I", 1, rational(f), True),  # FNumber
                 (34855, "H", 1, int(round(iso)), True),  # ISOSpeedRatings
                 (271, "s", 0, "brdfrig", True), (272, "s", 0, "SimulatedCamera", True)]
-        tmp = path.with_name(f".{path.name}.part")
-        try:
+        with temp_path(path, overwrite=False) as tmp:
             tifffile.imwrite(tmp, rgb16, photometric="rgb", extratags=tags, metadata=None)
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
         return path

@@ -3,7 +3,7 @@
 The simulator models the device, not the driver's expectations: motion takes
 time and advances in integer motor steps, the gear has backlash (the table
 lags the motor by up to the play), the firmware speaks the dialect documented
-in :mod:`rig.grbl_protocol`, and faults happen the way they do on a bench:
+in :mod:`brdfrig.rig.grbl_protocol`, and faults happen the way they do on a bench:
 lost or garbled reply lines, a stalled motor, slow motion, a USB disconnect
 (the board resets and comes back, possibly under a new ``/dev/pts/N``), and
 alarms that lock the controller until it is reset and homed.
@@ -19,6 +19,18 @@ keeps ``motor <= table <= motor + play``: moving +, the motor pushes the table
 (``table = min(table, motor + play)``).  Homing ends with a + approach, so
 afterwards ``table == motor == 0``.  The firmware's MPos is
 ``(motor - counter_zero) / $100``: the firmware never knows about the play.
+
+Fault schedule (reproducible, independent of timing): every random decision
+is drawn from ``random.Random`` seeded by ``(seed, stream, index)``, where the
+index counts protocol events, not time.  Reply lines are indexed by
+``(epoch, n)``: ``epoch`` counts the command lines and reset bytes received,
+``n`` the lines sent since; received command lines by their count; moves by
+their count.  The same bytes from the client therefore meet the same faults.
+With ``tick_s`` set, motion and homing also run on a virtual clock that
+advances ``tick_s`` per status report (``?``), so how far a move has got when
+the client looks depends on how often it looked, never on the machine's load.
+Scripted faults (:meth:`GrblSimulator.rewrite_command`,
+:meth:`GrblSimulator.drop_reply`) reproduce a given failure exactly.
 """
 
 from __future__ import annotations
@@ -37,7 +49,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig import grbl_protocol as gp
+from brdfrig.rig import grbl_protocol as gp
 
 __all__ = ["FaultRates", "MOTION_FAULTS", "LINE_FAULTS", "GrblSimulator"]
 
@@ -130,7 +142,10 @@ class GrblSimulator:
     start_angle_deg : float
         Physical table angle at power-up (the firmware counter starts at 0 there).
     seed : int
-        Seed of the fault generator (deterministic given the client's timing).
+        Seed of the fault schedule (see the module docstring).
+    tick_s : float, optional
+        Virtual clock: mechanics advance this many seconds per status report
+        received, and only then.  ``None`` (default) runs them in real time.
 
     Attributes
     ----------
@@ -138,6 +153,10 @@ class GrblSimulator:
         Stable path to open with pyserial (a symlink to the current pty slave).
     fault_counts : collections.Counter
         Number of faults injected, by kind.
+    fault_log : list of tuple
+        Every fault injected, in order: ``(kind, where)`` with ``where`` the
+        schedule index (``(epoch, n)`` for a reply line, the count for a
+        received line or a move) or ``"forced"``/``"scripted"``.
     """
 
     def __init__(
@@ -155,6 +174,7 @@ class GrblSimulator:
         foreign_reply: str | None = None,
         start_angle_deg: float = 37.0,
         seed: int = 0,
+        tick_s: float | None = None,
     ) -> None:
         if not steps_per_degree > 0:
             raise ValueError(f"steps_per_degree must be > 0, got {steps_per_degree!r}")
@@ -162,6 +182,8 @@ class GrblSimulator:
             raise ValueError(f"backlash_deg must be >= 0, got {backlash_deg!r}")
         if not max_rate_deg_s > 0:
             raise ValueError(f"max_rate_deg_s must be > 0, got {max_rate_deg_s!r}")
+        if tick_s is not None and not tick_s > 0:
+            raise ValueError(f"tick_s must be > 0 or None, got {tick_s!r}")
         self._baud_flag = getattr(termios, f"B{baud}", None)
         if self._baud_flag is None:
             raise ValueError(f"baud {baud!r} is not a standard rate")
@@ -175,8 +197,18 @@ class GrblSimulator:
         self.baud = baud
         self.faults = faults or FaultRates()
         self.fault_counts: Counter[str] = Counter()
-        self._rng = random.Random(seed)
+        self.fault_log: list[tuple[str, object]] = []
+        self.seed = seed
+        self.tick_s = tick_s
+        self._vclock = 0.0
+        self._noise_rng = random.Random(seed)  # wrong-baud noise: content only, never a fault decision
+        self._epoch = 0  # command lines + reset bytes received
+        self._sent_in_epoch = 0  # reply lines sent since the epoch began
+        self._lines_received = 0
+        self._moves_planned = 0
         self._forced: deque[str] = deque()
+        self._rewrites: list[tuple[str, str, bool]] = []
+        self._drop_patterns: list[re.Pattern] = []
         self._lock = threading.RLock()
         # firmware settings ($N=value)
         self._settings = {
@@ -265,24 +297,46 @@ class GrblSimulator:
         with self._lock:
             self._forced.append(kind)
 
+    def rewrite_command(self, old: str, new: str, *, drop_ok: bool = False) -> None:
+        """Script line noise toward the board: the next received line ``old`` executes as ``new``.
+
+        Lines are compared as the firmware reads them (spaces removed, upper
+        case).  With ``drop_ok`` the ``ok`` answering it is lost as well.
+        """
+        with self._lock:
+            self._rewrites.append((_normal(old), _normal(new), drop_ok))
+
+    def drop_reply(self, pattern: str) -> None:
+        """Script a lost reply: the next line sent that matches the regular expression ``pattern`` is dropped."""
+        with self._lock:
+            self._drop_patterns.append(re.compile(pattern))
+
     @property
     def table_angle_deg(self) -> float:
         """Physical table angle in degrees from the home switch (what a camera sees), now."""
         with self._lock:
-            self._advance(time.monotonic())
+            self._advance(self._now())
             return self.table / self.steps_per_degree
 
     @property
     def is_moving(self) -> bool:
         """True while the motor is commanded to move (Run, Home, or a stalled Run)."""
         with self._lock:
-            self._advance(time.monotonic())
+            self._advance(self._now())
             return self.state in ("Run", "Home")
 
     @property
     def connected(self) -> bool:
         with self._lock:
             return self._master is not None
+
+    def _now(self) -> float:
+        """The mechanics clock: virtual (``tick_s``) or ``time.monotonic()``."""
+        return self._vclock if self.tick_s is not None else time.monotonic()
+
+    def _schedule(self, stream: str, index) -> random.Random:
+        """The generator of one scheduled decision: a function of ``(seed, stream, index)`` only."""
+        return random.Random(f"{self.seed}/{stream}/{index}")
 
     # -- pty ----------------------------------------------------------------------------------
     def _open_pty(self) -> None:
@@ -316,7 +370,7 @@ class GrblSimulator:
         while not self._stop.is_set():
             with self._lock:
                 now = time.monotonic()
-                self._advance(now)
+                self._advance(self._now())
                 if self._master is None and self._reconnect_at is not None and now >= self._reconnect_at:
                     self._reconnect()
                 master = self._master
@@ -338,57 +392,74 @@ class GrblSimulator:
                         continue
                     except OSError:
                         data = b""
-                    self._advance(time.monotonic())
+                    self._advance(self._now())
                     self._receive(data)
 
     def _next_wakeup(self, now: float) -> float:
         times = [now + 0.05]
-        if self._active is not None and self._active.end_time() is not None:
-            times.append(self._active.end_time())
-        for t in (self._homing_done_at, self._reconnect_at):
-            if t is not None:
-                times.append(t)
-        if self._pending_event is not None:
-            times.append(self._pending_event[0])
+        if self._reconnect_at is not None:
+            times.append(self._reconnect_at)
+        if self.tick_s is None:  # real-time mechanics: wake for their events too
+            if self._active is not None and self._active.end_time() is not None:
+                times.append(self._active.end_time())
+            if self._homing_done_at is not None:
+                times.append(self._homing_done_at)
+            if self._pending_event is not None:
+                times.append(self._pending_event[0])
         return max(0.0, min(times) - now)
 
     def _send(self, text: str, *, faultable: bool = True) -> None:
         data = text.encode("ascii") + b"\r\n"
+        index = (self._epoch, self._sent_in_epoch)
+        self._sent_in_epoch += 1
         if faultable:
-            kind = self._line_fault()
+            for pattern in self._drop_patterns:
+                if pattern.search(text):
+                    self._drop_patterns.remove(pattern)
+                    self._log("drop", "scripted")
+                    return
+            kind, rng = self._line_fault(index)
             if kind == "drop":
                 return
             if kind == "garble":
-                data = self._garble(data)
+                data = self._garble(data, rng)
         self._write(data)
 
     def _write(self, data: bytes) -> None:
         if self._master is None:
             return
         if not self._baud_matches():
-            data = bytes(self._rng.randrange(128, 256) for _ in data)
+            data = bytes(self._noise_rng.randrange(128, 256) for _ in data)
         try:
             os.write(self._master, data)
         except OSError:  # tty buffer full (nobody reading): bytes lost like a UART overrun
             pass
 
-    def _line_fault(self) -> str | None:
-        if self._forced and self._forced[0] in LINE_FAULTS:
-            kind = self._forced.popleft()
-        elif self._rng.random() < self.faults.drop:
-            kind = "drop"
-        elif self._rng.random() < self.faults.garble:
-            kind = "garble"
-        else:
-            return None
+    def _log(self, kind: str, where) -> None:
         self.fault_counts[kind] += 1
-        return kind
+        self.fault_log.append((kind, where))
 
-    def _garble(self, data: bytes) -> bytes:
+    def _line_fault(self, index: tuple[int, int]) -> tuple[str | None, random.Random]:
+        """The fault (``"drop"``, ``"garble"`` or None) scheduled for the reply line at ``index``."""
+        rng = self._schedule("tx", index)
+        u_drop, u_garble = rng.random(), rng.random()
+        if self._forced and self._forced[0] in LINE_FAULTS:
+            kind, where = self._forced.popleft(), "forced"
+        elif u_drop < self.faults.drop:
+            kind, where = "drop", index
+        elif u_garble < self.faults.garble:
+            kind, where = "garble", index
+        else:
+            return None, rng
+        self._log(kind, where)
+        return kind, rng
+
+    @staticmethod
+    def _garble(data: bytes, rng: random.Random) -> bytes:
         out = bytearray(data)
-        for _ in range(self._rng.randint(1, 3)):
-            i = self._rng.randrange(len(out) - 2 or 1)
-            out[i] = self._rng.choice(b"~#%&*@\x00\xff\x7f0123456789.:|<>")
+        for _ in range(rng.randint(1, 3)):
+            i = rng.randrange(len(out) - 2 or 1)
+            out[i] = rng.choice(b"~#%&*@\x00\xff\x7f0123456789.:|<>")
         return bytes(out)
 
     def _receive(self, data: bytes) -> None:
@@ -404,8 +475,12 @@ class GrblSimulator:
                     self._send(self.foreign_reply, faultable=False)
                 continue
             if ch == gp.RESET:
+                self._new_epoch()
                 self._soft_reset()
             elif ch == gp.STATUS_QUERY:
+                if self.tick_s is not None:
+                    self._vclock += self.tick_s
+                    self._advance(self._vclock)
                 self._report_status()
             elif ch == gp.FEED_HOLD:
                 self._feed_hold()
@@ -419,17 +494,38 @@ class GrblSimulator:
                 self._line_buf += ch
         self._run_pending_lines()
 
+    def _new_epoch(self) -> None:
+        self._epoch += 1
+        self._sent_in_epoch = 0
+
     def _run_pending_lines(self) -> None:
         while self._pending_lines and self.state != "Home":
             line = self._pending_lines.popleft()
+            self._new_epoch()
             if self._critical:
                 continue  # GRBL ignores everything but reset after a hard alarm
-            if line.strip() and self._rng.random() < self.faults.garble:
-                self.fault_counts["garble"] += 1
-                chars = list(line)
-                chars[self._rng.randrange(len(chars))] = self._rng.choice("9#X.")
-                line = "".join(chars)
-            self._execute(line.strip().upper().replace(" ", ""))
+            index = self._lines_received
+            self._lines_received += 1
+            line = self._noisy_line(line, index)
+            self._execute(_normal(line))
+
+    def _noisy_line(self, line: str, index: int) -> str:
+        """A received line after line noise: a scripted rewrite, or the garble scheduled for line ``index``."""
+        for rule in self._rewrites:
+            old, new, drop_ok = rule
+            if _normal(line) == old:
+                self._rewrites.remove(rule)
+                self._log("garble", "scripted")
+                if drop_ok:
+                    self._drop_patterns.insert(0, re.compile(r"^ok$"))
+                return new
+        rng = self._schedule("rx", index)
+        if line.strip() and rng.random() < self.faults.garble:
+            self._log("garble", ("rx", index))
+            chars = list(line)
+            chars[rng.randrange(len(chars))] = rng.choice("9#X.")
+            return "".join(chars)
+        return line
 
     # -- firmware -----------------------------------------------------------------------------
     def _boot_messages(self) -> None:
@@ -474,7 +570,7 @@ class GrblSimulator:
     def _cycle_start(self) -> None:
         if self.state == "Hold":
             self.state = "Idle"
-            self._start_next(time.monotonic())
+            self._start_next(self._now())
 
     def _execute(self, line: str) -> None:
         if line == "":
@@ -501,7 +597,7 @@ class GrblSimulator:
                 self._send("error:8")
                 return
             self.state = "Home"
-            self._homing_done_at = time.monotonic() + self.homing_time_s
+            self._homing_done_at = self._now() + self.homing_time_s
         elif m := re.fullmatch(r"\$(\d+)=([-+]?\d*\.?\d+)", line):
             key, value = int(m.group(1)), float(m.group(2))
             if self.state not in ("Idle", "Alarm"):
@@ -552,17 +648,24 @@ class GrblSimulator:
             motor_target = self.counter_zero + steps if self._absolute else base + steps
             self._queue.append(motor_target)
             if self.state == "Idle":
-                self._start_next(time.monotonic())
+                self._start_next(self._now())
         self._send("ok")
 
-    def _motion_fault(self) -> str | None:
+    def _motion_fault(self) -> tuple[str | None, float]:
+        """The fault scheduled for the next planned move, and the fraction of the move where it strikes."""
+        index = self._moves_planned
+        self._moves_planned += 1
+        rng = self._schedule("move", index)
+        draws = [rng.random() for _ in MOTION_FAULTS]
+        frac = rng.uniform(0.1, 0.9)
         if self._forced and self._forced[0] in MOTION_FAULTS:
-            kind = self._forced.popleft()
+            kind, where = self._forced.popleft(), "forced"
         else:
-            kind = next((k for k in MOTION_FAULTS if self._rng.random() < getattr(self.faults, k)), None)
+            kind = next((k for k, u in zip(MOTION_FAULTS, draws) if u < getattr(self.faults, k)), None)
+            where = ("move", index)
         if kind is not None:
-            self.fault_counts[kind] += 1
-        return kind
+            self._log(kind, where)
+        return kind, frac
 
     def _start_next(self, t0: float) -> None:
         while self._queue:
@@ -571,8 +674,7 @@ class GrblSimulator:
                 continue
             rate = self._settings[110] / 60.0 * self.steps_per_degree
             seg = _Segment(self.motor, target, t0, rate)
-            kind = self._motion_fault()
-            frac = self._rng.uniform(0.1, 0.9)
+            kind, frac = self._motion_fault()
             if kind == "slow":
                 seg.steps_per_s = rate / self.slow_factor
             elif kind == "stall":
@@ -635,11 +737,12 @@ class GrblSimulator:
     def _disconnect(self, now: float) -> None:
         self.state = "Off"
         self._close_pty()
-        self._reconnect_at = now + self.reconnect_delay_s
+        self._reconnect_at = time.monotonic() + self.reconnect_delay_s  # the USB bus runs in real time
 
     def _reconnect(self) -> None:
         """The board powers up again: counter zero here, homing lock, greeting on a fresh pty."""
         self._reconnect_at = None
+        self._new_epoch()
         self.counter_zero = self.motor
         self._queue.clear()
         self._pending_lines.clear()
@@ -648,3 +751,8 @@ class GrblSimulator:
         self.state = "Alarm"
         self._open_pty()
         self._boot_messages()
+
+
+def _normal(line: str) -> str:
+    """A command line as the firmware reads it: surrounding and inner spaces removed, upper case."""
+    return line.strip().upper().replace(" ", "")

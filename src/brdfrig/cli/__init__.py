@@ -1,0 +1,1 @@
+"""The ``brdfrig`` command: one module per sub-command (parse, call one library function, print)."""
