@@ -67,6 +67,8 @@ _PROVIDERS: dict[str, str] = {
     "oren_nayar": "brdfrig.fit.analytic",
     "blinn_phong": "brdfrig.fit.analytic",
     "ggx": "brdfrig.fit.analytic",
+    "tabulated": "brdfrig.fit.measured",
+    "neural": "brdfrig.fit.measured",
 }
 
 
