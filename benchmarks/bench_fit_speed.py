@@ -11,7 +11,7 @@ builds them, with its functions: the GGX sphere :data:`brdfrig.evaluate.bench.TR
 ``fit``'s library import graph.
 
 Printed: per case, the median / min / max wall time of ``fit_brdf`` over the runs (one untimed warm-up
-first: numba and cached tables), the median of each stage of ``report["stage_seconds"]``
+first: numba and cached tables), the median of each stage of ``FitReport.stage_seconds``
 (:data:`brdfrig.fit.fitter.STAGES`), and a peer measured in the same run: LAPACK's SVD-based least squares
 (``numpy.linalg.lstsq``, ``gelsd``; the answer of the joint solver) of the dense, column-equilibrated
 design of as many random usable pixels as the fit used (the design assembled by ``brdfrig.fit.system``
@@ -60,14 +60,14 @@ def headline_scenes(fit_env: Environment, sphere, sphere_size: int, headline_siz
 
 def time_fits(scenes: list[Scene], lmax: int, runs: int) -> tuple[list[float], list[dict], dict]:
     """Wall times (s), stage seconds of each run, and the last report, of ``runs`` headline fits."""
-    kwargs = dict(model="full", lmax=lmax, pmax=lmax, solver="joint", progress=False)
+    kwargs = dict(model="full", lmax=lmax, pmax=lmax, solver="joint", progress=False, estimate=False)
     fit_brdf(scenes, **kwargs)  # warm-up: numba compilation, cached rotation tables
-    times, stages, report = [], [], {}
+    times, stages, report = [], [], None
     for _ in range(runs):
         t0 = time.perf_counter()
         report = fit_brdf(scenes, **kwargs).report
         times.append(time.perf_counter() - t0)
-        stages.append(report.get("stage_seconds", {}))
+        stages.append(report.stage_seconds)
     return times, stages, report
 
 
@@ -129,7 +129,7 @@ def run(fit_env: Environment, sphere, *, quick: bool = False, runs: int = 7, pee
     out = {}
     for count, scenes in cases.items():
         times, stages, report = time_fits(scenes, lmax, runs)
-        rows = report["candidates"]["full"]["rows_used"]
+        rows = report.candidates["full"].system.rows_used
         peer = peer_lstsq_seconds(scenes, lmax, rows, peer_runs) if peer_runs else []
         out[count] = dict(times=times, stages=stages, rows=rows, peer=peer, report=report)
         print(f"  {count} scene(s): median {statistics.median(times):.3f} s", file=sys.stderr, flush=True)

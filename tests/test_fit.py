@@ -19,8 +19,8 @@ from test_fit_scenes import ALBEDO, GGX_MATERIAL, make_scenes, probes, relight_e
 
 
 def _determined_choice(result):
-    chosen = result.report["chosen_model"]
-    assert result.report["candidates"][chosen]["determined"], result.report["candidates"][chosen]
+    chosen = result.report.chosen_model
+    assert result.report.chosen.determined, result.report.chosen
     return chosen
 
 
@@ -38,7 +38,7 @@ def test_one_scene_lambertian_relights_within_half_percent(probes, noise):
     np.testing.assert_allclose(res.brdf.albedo, ALBEDO, rtol=0.005)
     auto = fit_brdf(scenes, lmax=12, pmax=4, progress=False)
     err_auto = relight_error(auto.brdf, truth, test_env, normals)
-    print(f"  auto -> {auto.report['chosen_model']}: relight {err_auto:.4%}")
+    print(f"  auto -> {auto.report.chosen_model}: relight {err_auto:.4%}")
     assert _determined_choice(auto) != "full"
     assert err_auto <= 0.005
 
@@ -52,7 +52,7 @@ def test_one_scene_ggx_relights_within_eight_percent(probes, noise):
     auto = fit_brdf(scenes, lmax=8, pmax=8, progress=False)
     chosen = _determined_choice(auto)
     assert chosen not in ("full", "full+prior")
-    assert auto.report["identifiability"]["models"]["full"]["determined"] is False
+    assert auto.report.identifiability["models"]["full"]["determined"] is False
     err = relight_error(auto.brdf, truth, test_env, normals)
     lobe = fit_brdf(scenes, model="lobe", lmax=8, progress=False)
     err_lobe = relight_error(lobe.brdf, truth, test_env, normals)
@@ -74,15 +74,15 @@ def test_twelve_scenes_ggx_full_model_relights_within_three_percent(probes, nois
     rng = np.random.default_rng(1)
     scenes = [Scene(s.env, s.normals, s.radiance * (1 + noise * rng.normal(size=s.radiance.shape)), s.weights) for s in _TWELVE["clean"]]
     res = fit_brdf(scenes, model="full", lmax=8, pmax=8, progress=False)
-    assert res.report["identifiability"]["models"]["full"]["determined"]
-    assert res.report["candidates"]["full"]["determined"]
+    assert res.report.identifiability["models"]["full"]["determined"]
+    assert res.report.candidates["full"].determined
     err = relight_error(res.brdf, truth, test_env, normals)
     print(f"ggx 12 scenes noise={noise}: full relight {err:.4%}")
     assert err <= 0.03
     if noise:
         prior = fit_brdf(scenes, model="full+prior", lmax=8, pmax=8, progress=False)
         err_prior = relight_error(prior.brdf, truth, test_env, normals)
-        print(f"  full+prior (toward {prior.report['candidates']['full+prior']['prior']}) relight {err_prior:.4%}")
+        print(f"  full+prior (toward {prior.report.candidates['full+prior'].prior}) relight {err_prior:.4%}")
         assert err_prior <= 0.03
         assert err_prior <= 1.05 * err  # the prior does not cost accuracy once the data determine the model
 
@@ -100,9 +100,9 @@ def test_one_scene_full_plus_prior_relights_no_worse_than_its_prior(probes, nois
     truth = GGX(**GGX_MATERIAL)
     scenes = make_scenes(truth, [fit_env], normals, weights, noise=noise)
     res = fit_brdf(scenes, model="full+prior", lmax=6, pmax=6, progress=False)
-    info = res.report["candidates"]["full+prior"]
-    assert info["prior"] == "microfacet"
-    prior = fit_brdf(scenes, model=info["prior"], progress=False).brdf
+    info = res.report.candidates["full+prior"]
+    assert info.prior == "microfacet"
+    prior = fit_brdf(scenes, model=info.prior, progress=False).brdf
     prior_full = make_linear_brdf(res.brdf.spec, project_to_full(prior, res.brdf.spec))
     err = relight_error(res.brdf, truth, test_env, normals)
     err_prior = relight_error(prior_full, truth, test_env, normals)
@@ -148,8 +148,8 @@ def test_stability_low_band_lighting_reports_unobservable_bands():
     normals, weights = sphere(48)
     truth = Lambertian(ALBEDO)
     res = fit_brdf(make_scenes(truth, [env], normals, weights), lmax=8, progress=False)
-    assert res.report["unobservable_bands"] == [2, 3, 4, 5, 6, 7, 8]
-    assert "no lighting energy" in res.report["identifiability_summary"]
+    assert res.report.unobservable_bands == [2, 3, 4, 5, 6, 7, 8]
+    assert "no lighting energy" in res.report.identifiability_summary
     assert _determined_choice(res) in ("diffuse", "lobe", "microfacet")
     pred = res.brdf.predict(env, normals)
     assert np.all(np.isfinite(pred))
@@ -170,11 +170,11 @@ def test_stability_single_bright_pixel_and_huge_dynamic_range(probes):
         pred = res.brdf.predict(test_env, normals)
         assert np.all(np.isfinite(pred))
         err = relight_error(res.brdf, truth, test_env, normals)
-        cond = max(res.report["candidates"]["diffuse"]["condition_number"])
-        print(f"{model} -> {res.report['chosen_model']}: relight {err:.4f} cond {cond:.3g} warnings {res.report['warnings']}")
+        cond = max(res.report.candidates["diffuse"].system.condition_number)
+        print(f"{model} -> {res.report.chosen_model}: relight {err:.4f} cond {cond:.3g} warnings {res.report.warnings}")
         # never silently wrong: either it relights or the report says it may not
         # (a 1e6 point sun leaves a sharp terminator that l = 8 cannot follow: diffuse relights to ~8%)
-        assert err < 0.1 or any("plausible" in w or "condition" in w for w in res.report["warnings"]), (err, cond)
+        assert err < 0.1 or any("plausible" in w or "condition" in w for w in res.report.warnings), (err, cond)
     assert err < 0.01  # auto under the sun
 
 
@@ -198,8 +198,8 @@ def test_stability_black_images_tiny_sphere_and_bad_pixels(probes):
     w = weights.copy()
     w[10:15] = 0.0
     res = fit_brdf([Scene(fit_env, normals, rad, w)], model="diffuse", lmax=4, progress=False)
-    assert res.report["pixels"]["non_finite"] == 7
-    assert res.report["pixels"]["weight_zero"] == 5
+    assert res.report.pixels.non_finite == 7
+    assert res.report.pixels.weight_zero == 5
     assert np.all(np.isfinite(res.brdf.x))
 
 
@@ -218,18 +218,18 @@ def test_bad_input_is_a_clear_error(probes):
 def test_one_scene_full_fit_streams_reduced_with_the_same_prediction(probes, monkeypatch):
     """One scene leaves ``full`` rank-deficient: the stream is folded in a basis of the design's row
     space (fewer QR columns); fitted radiance, rank and unknowns match the unreduced stream."""
-    import brdfrig.fit.fitter
+    import brdfrig.fit.stream
 
     fit_env, _ = probes
     normals, weights = sphere(96)
     scenes = make_scenes(GGX(**GGX_MATERIAL), [fit_env], normals, weights)
     reduced = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
-    monkeypatch.setattr(brdfrig.fit.fitter, "REDUCE_MAX_FRACTION", -1.0)  # never reduce
+    monkeypatch.setattr(brdfrig.fit.stream, "REDUCE_MAX_FRACTION", -1.0)  # never reduce
     plain = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
-    red, ref = reduced.report["candidates"]["full"], plain.report["candidates"]["full"]
-    print(f"reduced stream: {red['reduced_stream']}; rank {red['rank']} of {red['unknowns']}")
-    assert red["reduced_stream"] is not None and ref["reduced_stream"] is None
-    assert red["rank"] == ref["rank"] and red["rows_used"] == ref["rows_used"] > 2048  # several blocks checked
+    red, ref = reduced.report.candidates["full"].system, plain.report.candidates["full"].system
+    print(f"reduced stream: {red.reduced_stream}; rank {red.rank} of {red.unknowns}")
+    assert red.reduced_stream is not None and ref.reduced_stream is None
+    assert red.rank == ref.rank and red.rows_used == ref.rows_used > 2048  # several blocks checked
     pred, oracle = reduced.brdf.predict(fit_env, normals), plain.brdf.predict(fit_env, normals)
     rel = np.linalg.norm(pred - oracle) / np.linalg.norm(oracle)
     print(f"  relative difference of the predicted radiance: {rel:.2e}")
@@ -237,10 +237,10 @@ def test_one_scene_full_fit_streams_reduced_with_the_same_prediction(probes, mon
     # and the same (minimum-norm) unknowns
     np.testing.assert_allclose(reduced.brdf.x, plain.brdf.x, rtol=0, atol=1e-6 * np.abs(plain.brdf.x).max())
     # a later block outside the basis makes the stream start again unreduced
-    monkeypatch.setattr(brdfrig.fit.fitter, "REDUCE_MAX_FRACTION", 0.75)
-    monkeypatch.setattr(brdfrig.fit.fitter, "REDUCE_OUTSIDE_RTOL", -1.0)
+    monkeypatch.setattr(brdfrig.fit.stream, "REDUCE_MAX_FRACTION", 0.75)
+    monkeypatch.setattr(brdfrig.fit.stream, "REDUCE_OUTSIDE_RTOL", -1.0)
     fallback = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
-    assert fallback.report["candidates"]["full"]["reduced_stream"] is None
+    assert fallback.report.candidates["full"].system.reduced_stream is None
     np.testing.assert_allclose(fallback.brdf.x, plain.brdf.x, rtol=1e-12, atol=0)
 
 
@@ -282,7 +282,7 @@ def test_restructured_stream_predicts_like_the_previous_path(probes, monkeypatch
     """The speed work (LAPACK tpqrt updates, numba design kernel, Cholesky probe) changes rounding only:
     with the previous implementations patched back in, the same pixels are used and the joint fit
     predicts the same radiance to 1e-9 (one scene: reduced stream; six scenes: full rank)."""
-    import brdfrig.fit.fitter
+    import brdfrig.fit.stream
     import brdfrig.fit.solvers
     import brdfrig.fit.system
 
@@ -297,17 +297,17 @@ def test_restructured_stream_predicts_like_the_previous_path(probes, monkeypatch
     new = {k: fit_brdf(s, model="full", lmax=l, pmax=l, progress=False) for k, (s, l, _) in cases.items()}
     monkeypatch.setattr(brdfrig.fit.solvers.StreamedQR, "add", _previous_add)
     monkeypatch.setattr(brdfrig.fit.system, "_full_rows", _previous_rows)
-    monkeypatch.setattr(brdfrig.fit.fitter, "probe_solution", _previous_probe)
+    monkeypatch.setattr(brdfrig.fit.stream, "probe_solution", _previous_probe)
     for name, (scenes, lmax, normals) in cases.items():
         old = fit_brdf(scenes, model="full", lmax=lmax, pmax=lmax, progress=False)
-        a, b = new[name].report["candidates"]["full"], old.report["candidates"]["full"]
-        assert a["rows_used"] == b["rows_used"] > 2048 and a["rank"] == b["rank"]
-        assert (a["reduced_stream"] is None) == (b["reduced_stream"] is None) == ("six" in name)
+        a, b = new[name].report.candidates["full"].system, old.report.candidates["full"].system
+        assert a.rows_used == b.rows_used > 2048 and a.rank == b.rank
+        assert (a.reduced_stream is None) == (b.reduced_stream is None) == ("six" in name)
         rel = {}
         for env in (fit_env, test_env):
             p_new, p_old = new[name].brdf.predict(env, normals), old.brdf.predict(env, normals)
             rel[id(env)] = np.linalg.norm(p_new - p_old) / np.linalg.norm(p_old)
-        print(f"{name}: rows {a['rows_used']}, rank {a['rank']}, relative prediction difference "
+        print(f"{name}: rows {a.rows_used}, rank {a.rank}, relative prediction difference "
               f"fit lighting {rel[id(fit_env)]:.2e}, other lighting {rel[id(test_env)]:.2e}")
         assert rel[id(fit_env)] <= 1e-9
         if "six" in name:  # determined: relighting agrees too (one scene: the null space is minimum-norm noise)
@@ -319,7 +319,10 @@ def test_gather_matches_numpy_masks(probes):
     negative weights and normals beyond the limb margin."""
     import math
 
-    from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG, _gather
+    from dataclasses import asdict
+
+    from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG
+    from brdfrig.fit.stream import gather_pixels as _gather
 
     fit_env, _ = probes
     rng = np.random.default_rng(4)
@@ -352,7 +355,7 @@ def test_gather_matches_numpy_masks(probes):
         want["beyond_limb_margin"] += int((positive & finite & ~inside).sum())
         want["used"] += int(keep.sum())
         keep_all.append(keep)
-    assert counts == want
+    assert asdict(counts) == want
     assert want["weight_zero"] == 3 * 20 and want["non_finite"] == 3 * 20 and want["beyond_limb_margin"] == 3 * 5
     np.testing.assert_array_equal(pool.scene, np.concatenate([np.full(k.sum(), i) for i, k in enumerate(keep_all)]))
     np.testing.assert_array_equal(pool.normals, np.concatenate([s.normals[k] for s, k in zip(scenes, keep_all)]))
@@ -363,21 +366,22 @@ def test_gather_matches_numpy_masks(probes):
 def test_full_plus_prior_warns_on_the_regularised_condition_number_only(probes):
     """One scene leaves ``full`` singular (data condition number inf): the plain joint fit warns, the
     Tikhonov fit toward the prior reports the finite condition number of the system it solved and does not."""
-    from brdfrig.fit.fitter import COND_WARN, PRIOR_LAM_MIN
+    from brdfrig.fit.fitter import PRIOR_LAM_MIN
+    from brdfrig.fit.select import COND_WARN
 
     fit_env, _ = probes
     normals, weights = sphere(48)
     scenes = make_scenes(GGX(**GGX_MATERIAL), [fit_env], normals, weights)
     plain = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
-    assert any("condition number" in w for w in plain.report["warnings"])
-    assert plain.report["candidates"]["full"]["condition_number_regularised"] is None
+    assert any("condition number" in w for w in plain.report.warnings)
+    assert plain.report.candidates["full"].system.condition_number_regularised is None
     prior = fit_brdf(scenes, model="full+prior", lmax=4, pmax=4, progress=False)
-    info = prior.report["candidates"]["full+prior"]
-    lam = np.array(info["tikhonov_lambda_rel"])
-    reg = np.array(info["condition_number_regularised"])
-    print(f"full+prior: data cond {info['condition_number']}, regularised {reg}, lambda/s_max {lam}")
-    assert np.all(np.isinf(info["condition_number"]))
+    info = prior.report.candidates["full+prior"].system
+    lam = np.array(info.tikhonov_lambda_rel)
+    reg = np.array(info.condition_number_regularised)
+    print(f"full+prior: data cond {info.condition_number}, regularised {reg}, lambda/s_max {lam}")
+    assert np.all(np.isinf(info.condition_number))
     # s_min = 0: sqrt((s_max^2 + lam^2) / lam^2) exactly, and lam >= the floor for an undetermined model
     np.testing.assert_allclose(reg, np.sqrt(1 + 1 / lam**2), rtol=1e-9)
     assert np.all(lam >= PRIOR_LAM_MIN[False] * (1 - 1e-12)) and np.all(reg < COND_WARN)
-    assert not any("condition number" in w for w in prior.report["warnings"]), prior.report["warnings"]
+    assert not any("condition number" in w for w in prior.report.warnings), prior.report.warnings

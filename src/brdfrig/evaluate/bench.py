@@ -61,6 +61,7 @@ import numpy as np
 
 from brdfrig._atomic import temp_path
 from brdfrig.fit.analytic import GGX
+from brdfrig.fit.registry import LINEAR_SH, SOLVERS
 from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.scene import Environment, Scene
@@ -88,8 +89,8 @@ __all__ = [
     "result_from_json",
 ]
 
-MODELS = ("diffuse", "lobe", "full", "full+prior", "microfacet")
-SOLVERS = ("paper", "joint", "tikhonov")
+MODELS = LINEAR_SH + ("full+prior", "microfacet")
+"""The models of the table (from :mod:`brdfrig.fit.registry`)."""
 TRUTH = GGX(alpha=0.3, f0=0.04, diffuse=(0.6, 0.4, 0.2))
 """The benchmark's material: GGX alpha = 0.3, dielectric Fresnel f0 = 0.04, orange Lambertian base."""
 
@@ -206,21 +207,20 @@ def _resample(image_values: np.ndarray, normals: np.ndarray, size: int, new_norm
     return np.stack([map_coordinates(grid[..., c], [y, x], order=1, mode="nearest") for c in range(grid.shape[2])], 1)
 
 
-def _stats(report: dict, model: str) -> tuple[int | None, float | None]:
+def _stats(report, model: str) -> tuple[int | None, float | None]:
     """(smallest rank, largest condition number) over channels of ``model`` in a fit report (None for microfacet)."""
-    info = report.get("candidates", {}).get(model, {})
-    rank, cond = info.get("rank"), info.get("condition_number")
-    rank = None if rank is None else int(np.min(rank))
-    cond = None if cond is None else float(np.max(cond))
-    return rank, cond
+    system = report.candidates[model].system
+    if system is None:
+        return None, None
+    return int(np.min(system.rank)), float(np.max(system.condition_number))
 
 
 def _fit(scenes: list[Scene], model: str, solver: str, lmax: int):
     from brdfrig.fit.fitter import fit_brdf
 
     if model == "microfacet":
-        return fit_brdf(scenes, model=model, progress=False)
-    return fit_brdf(scenes, model=model, lmax=lmax, pmax=lmax, solver=solver, progress=False)
+        return fit_brdf(scenes, model=model, progress=False, estimate=False)
+    return fit_brdf(scenes, model=model, lmax=lmax, pmax=lmax, solver=solver, progress=False, estimate=False)
 
 
 def time_runs(
@@ -253,7 +253,7 @@ def plan_cases(config: BenchConfig) -> list[tuple[str, str, int, int]]:
     ``full+prior`` is always solved by Tikhonov toward the prior (:mod:`brdfrig.fit.fitter`): one row per band
     limit; ``microfacet`` has no band limit (``"-"``, 0).
     """
-    cases = [(m, s, l, n) for n in config.scene_counts for m in ("diffuse", "lobe", "full")
+    cases = [(m, s, l, n) for n in config.scene_counts for m in LINEAR_SH
              for s in SOLVERS for l in config.lmax_values]
     cases += [("full+prior", "tikhonov", l, n) for n in config.scene_counts for l in config.lmax_values]
     cases += [("microfacet", "-", 0, n) for n in config.scene_counts]
@@ -271,9 +271,9 @@ def _warm_up(sphere: SphereGeometry, env: Environment, groundtruth: GroundTruth)
         fit_brdf(scenes, model=model, lmax=2, pmax=2, progress=False)
 
 
-def _add_stages(total: dict[str, float], report: dict) -> None:
-    """Add a fit's ``stage_seconds`` (if the fitter reports them) to ``total``."""
-    for stage, seconds in report.get("stage_seconds", {}).items():
+def _add_stages(total: dict[str, float], report) -> None:
+    """Add a fit report's ``stage_seconds`` to ``total``."""
+    for stage, seconds in report.stage_seconds.items():
         total[stage] = total.get(stage, 0.0) + float(seconds)
 
 

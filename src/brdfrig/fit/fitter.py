@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from brdfrig.errors import InputError
 from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
@@ -38,7 +39,7 @@ from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
 from brdfrig.fit.select import choose, fit_warnings, judge, radiance_problem
 from brdfrig.fit.stream import (
-    BLOCK_ROWS, REDUCE_MAX_FRACTION, STOP_TOL, FitData, StageClock, Stream, gather_pixels, project_lighting,
+    BLOCK_ROWS, STOP_TOL, FitData, StageClock, Stream, gather_pixels, project_lighting,
     solve_stream, stream_model,
 )
 from brdfrig.fit.system import ModelSpec
@@ -110,8 +111,7 @@ class _Candidates:
             # Reduce the stream where the lighting analysis already found the design rank-deficient
             # (the first block decides; the hint spares full-rank models its SVD).
             entry = self.ident.models.get(kind, {}) if spec_lmax == self.lmax else {}
-            reduce = entry.get("rank", spec.n_unknowns) <= REDUCE_MAX_FRACTION * spec.n_unknowns
-            self.streams[spec] = stream_model(spec, self.data, name, reduce=reduce)
+            self.streams[spec] = stream_model(spec, self.data, name, entry.get("rank"))
         x0 = lam_min = None
         if prior is not None:
             x0 = project_to_full(prior, spec)
@@ -226,7 +226,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     wanted = _wanted(model, len(scenes), estimate)
     ident = _analyse(data, list(range(len(scenes))), lmax, pmax, wanted, max_theta_deg)
     if not ident.observable_bands:
-        raise ValueError("the lighting has no energy in any band: nothing can be measured")
+        raise InputError("the lighting has no energy in any band: nothing can be measured")
 
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
     fitter = _Candidates(data, ident, lmax, pmax, solver)

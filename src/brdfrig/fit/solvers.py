@@ -51,7 +51,7 @@ __all__ = ["RANK_RTOL", "TPQRT_NB", "LAM_GRID_MIN", "PROBE_DAMPING", "probe_solu
 RANK_RTOL = 1e-9
 """Singular values below ``RANK_RTOL * s_max`` of the column-equilibrated system count as zero."""
 
-SOLVERS = ("paper", "joint", "tikhonov")
+from brdfrig.fit.registry import SOLVERS  # noqa: E402  (the one list of names)
 
 
 def numerical_rank(singular_values: np.ndarray, rtol: float = RANK_RTOL) -> int:

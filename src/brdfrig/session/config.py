@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from brdfrig.errors import ConfigError
+from brdfrig.fit.registry import MODELS, SOLVERS
 from brdfrig.ranges import Range
 
 __all__ = [
@@ -62,8 +63,8 @@ __all__ = [
     "stored_session_config",
 ]
 
-FIT_MODELS = ("auto", "diffuse", "lobe", "microfacet", "full", "full+prior")
-FIT_SOLVERS = ("paper", "joint", "tikhonov")
+FIT_MODELS = MODELS
+FIT_SOLVERS = SOLVERS
 CAMERA_BACKENDS = ("gphoto2", "watch", "sim")
 TURNTABLE_BACKENDS = ("grbl", "sim", "none")
 CARRIES = ("samples", "rig")

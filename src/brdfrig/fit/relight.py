@@ -1,0 +1,170 @@
+"""Estimates of each candidate fit's relighting error under lighting other than the fit's.
+
+The held-out pixels of the fit's own lighting cannot see extrapolation error (MATH.md pitfall 1: a fit
+can reproduce its image to 0.1% and relight at 40%).  Two estimates look at other lighting instead:
+
+- ``leave-one-scene-out`` (two or more scenes, :func:`loso_estimates`): the scenes are split into
+  ``min(n_scenes, LOSO_MAX_FOLDS)`` folds (scene k in fold ``k mod F``); each candidate is fitted again
+  on the other folds' pixels and predicts the left-out scenes' pixels under their own lighting; the
+  estimate is the weighted relative RMS error over all left-out pixels.  It measures relighting (with
+  the pixels' noise).
+- ``rotated-lighting spread`` (one scene, :func:`spread_estimates`): every candidate predicts a
+  subsample of the sphere under :data:`OTHER_ROTATIONS` of the fit's own lighting (turned about the
+  vertical and the horizontal axis); the squared relative RMS distance of two candidates' predictions,
+  ``d_ij^2``, is split into per-candidate squared errors ``e_i^2 + e_j^2 = d_ij^2`` by relative
+  non-negative least squares over all pairs (the "three-cornered hat" of clock comparison, Gray & Allan
+  1974): a candidate far from every other is the wrong one.  It assumes the candidates' errors are
+  independent, so it needs three or more candidates (two give each their distance, an upper bound for
+  the better one).  The estimate is at least the candidate's held-out error on its own lighting.
+
+Candidates regularised toward another fit (``prior`` kind) are left out of the split (their errors are
+that fit's): their estimate is ``sqrt(e_prior^2 + d^2)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import nnls
+
+from brdfrig.fit.registry import PRIOR_OF
+from brdfrig.fit.report import RelightEstimate
+from brdfrig.fit.scene import Environment
+from brdfrig.fit.stream import FitData
+
+__all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "LOSO_MAX_FOLDS", "other_lightings", "estimate_pixels",
+           "predict_under", "spread_estimates", "loso_estimates"]
+
+OTHER_ROTATIONS = (("y", 90.0), ("y", 180.0), ("y", 270.0), ("x", 90.0), ("x", -90.0))
+"""(axis, degrees) of the turned copies of the fit lighting the spread estimate predicts under."""
+ESTIMATE_PIXELS = 800
+"""Sphere pixels (a seeded subsample of the usable ones) each candidate predicts per other lighting."""
+LOSO_MAX_FOLDS = 3
+"""Most folds of the leave-one-scene-out estimate (each fold refits every candidate)."""
+SPREAD = "rotated-lighting spread"
+LOSO = "leave-one-scene-out"
+
+
+def _rotation(axis: str, degrees: float) -> np.ndarray:
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    if axis == "y":
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def other_lightings(env: Environment) -> list[Environment]:
+    """``env`` turned by each of :data:`OTHER_ROTATIONS`."""
+    return [env.rotated(_rotation(axis, deg)) for axis, deg in OTHER_ROTATIONS]
+
+
+def estimate_pixels(data: FitData, count: int = ESTIMATE_PIXELS) -> tuple[np.ndarray, np.ndarray]:
+    """(normals, weights) of a seeded subsample of scene 0's usable pixels."""
+    rows = np.flatnonzero(data.pool.scene == 0)
+    rows = np.sort(np.random.default_rng(1).permutation(rows)[:count])
+    return data.pool.normals[rows], data.pool.weights[rows]
+
+
+def predict_under(brdf, envs: list[Environment], normals: np.ndarray) -> np.ndarray:
+    """(len(envs), N, C) radiance of ``brdf`` at ``normals`` under each lighting."""
+    return np.stack([np.asarray(brdf.predict(e, normals), dtype=np.float64) for e in envs])
+
+
+def _distance2(a: np.ndarray, b: np.ndarray, energy: np.ndarray, w: np.ndarray) -> float:
+    """Mean over lightings of the weighted squared distance of two (L, N, C) predictions, relative to ``energy`` (L,)."""
+    return float(np.mean(np.einsum("lnc,n->l", (a - b) ** 2, w) / energy))
+
+
+def _hat(d2: np.ndarray) -> np.ndarray:
+    """Per-candidate squared errors x >= 0 with x_i + x_j ~ d2[i, j], relative least squares over pairs."""
+    n = len(d2)
+    rows, rhs = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            scale = max(d2[i, j], 1e-16)
+            row = np.zeros(n)
+            row[[i, j]] = 1.0 / scale
+            rows.append(row)
+            rhs.append(d2[i, j] / scale)
+    x, _ = nnls(np.array(rows), np.array(rhs))
+    return x
+
+
+def spread_estimates(preds: dict[str, np.ndarray], weights: np.ndarray, heldout: dict[str, float | None]) -> dict[str, RelightEstimate]:
+    """Rotated-lighting spread estimate (module docstring) of every candidate in ``preds``.
+
+    Parameters
+    ----------
+    preds : dict name -> (L, N, C)
+        Finite predictions under the other lightings.
+    weights : (N,)
+        Pixel weights.
+    heldout : dict name -> float or None
+        Held-out error on the fit's own lighting (the estimate's floor).
+    """
+    independent = [m for m in preds if m not in PRIOR_OF]
+    if not preds:
+        return {}
+    energy = np.median(np.stack([np.einsum("lnc,n->l", p**2, weights) for p in preds.values()]), axis=0)
+    energy = np.maximum(energy, 1e-300)
+    d2 = np.array([[_distance2(preds[a], preds[b], energy, weights) for b in independent] for a in independent])
+    n = len(independent)
+    if n >= 3:
+        x = dict(zip(independent, _hat(d2)))
+        how = f"split of the pairwise distances of {n} candidates' predictions"
+    elif n == 2:
+        x = dict.fromkeys(independent, d2[0, 1])
+        how = "distance of the 2 candidates' predictions (an upper bound for the better one)"
+    else:
+        x = dict.fromkeys(independent, 0.0)
+        how = "a single candidate: no spread, the held-out error only"
+    for m, prior in PRIOR_OF.items():
+        if m in preds and prior in x:
+            x[m] = x[prior] + _distance2(preds[m], preds[prior], energy, weights)
+    out = {}
+    for m, xm in x.items():
+        floor = heldout.get(m) or 0.0
+        out[m] = RelightEstimate(max(math.sqrt(xm), floor), SPREAD,
+                                 f"{how} under {len(OTHER_ROTATIONS)} turned copies of the fit lighting; "
+                                 f"at least the held-out error {floor:.3g}")
+    return out
+
+
+def _fold_split(data: FitData, out: np.ndarray) -> tuple[FitData, np.ndarray]:
+    """Data without the scenes ``out`` and the left-out pool pixels (a seeded subsample per scene)."""
+    scene = data.pool.scene
+    train = data.train[~np.isin(scene[data.train], out)]
+    held = data.held[~np.isin(scene[data.held], out)]
+    rng = np.random.default_rng(2)
+    test = np.concatenate([np.sort(rng.permutation(np.flatnonzero(scene == k))[:ESTIMATE_PIXELS]) for k in out])
+    return data.with_split(train, held), test
+
+
+def loso_estimates(data: FitData, names: list[str], fit_fold: Callable[[FitData, list[str]], dict]) -> dict[str, RelightEstimate]:
+    """Leave-one-scene-out relighting error of each candidate in ``names`` (module docstring).
+
+    ``fit_fold(data, names) -> {name: brdf}`` fits the candidates on ``data.train`` (those it can fit).
+    A candidate whose refit fails or predicts non-finite radiance gets no estimate (value None).
+    """
+    n_scenes = len(data.scenes)
+    folds = min(n_scenes, LOSO_MAX_FOLDS)
+    num, den, missing = dict.fromkeys(names, 0.0), 0.0, set()
+    for f in range(folds):
+        out = np.arange(f, n_scenes, folds)
+        fold, test = _fold_split(data, out)
+        brdfs = fit_fold(fold, names)
+        target, w = data.pool.radiance[test], data.pool.weights[test][:, None]
+        den += float(np.sum(w * target**2))
+        held_data = fold.with_split(fold.train, test)
+        for m in names:
+            if m not in brdfs:
+                missing.add(m)
+                continue
+            pred = held_data.predict_held(brdfs[m])
+            if not np.all(np.isfinite(pred)):
+                missing.add(m)
+                continue
+            num[m] += float(np.sum(w * (pred - target) ** 2))
+    detail = f"{folds} folds of {n_scenes} scenes (scene k in fold k mod {folds}), refitted without each fold"
+    return {m: RelightEstimate(None if m in missing or den <= 0 else math.sqrt(num[m] / den), LOSO, detail) for m in names}

@@ -1,0 +1,123 @@
+"""Judging the candidate fits of ``fit_brdf``: determinacy, admissibility, the choice of ``auto``, warnings.
+
+- Determinacy (:func:`judge`): from the lighting alone (identifiability analysis) and from the pixels
+  (the linear system reached full rank; a single-model fit's own ``determined``).
+- Radiance check: every candidate's predicted radiance (held-out pixels and the relighting estimate's
+  other lightings) must be finite and non-negative (:func:`radiance_problem`).
+- Choice (:func:`choose`): ``auto`` keeps the determined candidates whose radiance check passed (and,
+  when any is, the physically plausible ones: :func:`brdfrig.fit.models.plausibility`) and picks the one
+  with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`), the richest (order
+  :data:`brdfrig.fit.registry.RICHNESS`) within :data:`SELECT_RTOL` of it.  Without any estimate it falls
+  back to the held-out error of the same lighting, by the same rule.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from brdfrig.fit.identifiability import Identifiability
+from brdfrig.fit.registry import REGISTRY, RICHNESS
+from brdfrig.fit.report import Candidate, PixelCounts
+
+__all__ = ["SELECT_RTOL", "COND_WARN", "NEGATIVE_RTOL", "judge", "radiance_problem", "choose", "fit_warnings"]
+
+SELECT_RTOL = 0.02
+"""``auto`` picks the richest candidate whose score is within this fraction of the best."""
+COND_WARN = 1e6
+"""Condition number (column-equilibrated) above which the report warns that weakly determined
+directions may relight badly under other lighting.  For the ``tikhonov`` solver (and ``full+prior``)
+the condition number judged is that of the regularised system solved
+(:attr:`brdfrig.fit.report.SystemStats.condition_number_regularised`): a fit the prior keeps well
+determined does not warn."""
+NEGATIVE_RTOL = 1e-3
+"""Predicted radiance below ``-NEGATIVE_RTOL`` times the mean absolute prediction counts as negative."""
+
+
+def judge(cand: Candidate, ident: Identifiability) -> None:
+    """Set ``cand.determined`` from the lighting analysis and the achieved rank."""
+    if not cand.fitted:
+        cand.determined = False
+        return
+    kind = REGISTRY[cand.name].kind
+    if kind == "linear" and cand.name != "full":
+        det = ident.determined(cand.name)
+    elif kind in ("linear", "prior"):  # full, and full+prior (the prior only regularises)
+        det = cand.system.lmax <= ident.full_lmax_determined
+    else:
+        det = True  # single-model fits: a few parameters; their own report's "determined" is full_rank
+    cand.determined = bool(det and cand.full_rank)
+
+
+def radiance_problem(pred: np.ndarray, where: str) -> str | None:
+    """None if ``pred`` is finite and non-negative (within :data:`NEGATIVE_RTOL`), else what is wrong."""
+    pred = np.asarray(pred)
+    bad = int(np.count_nonzero(~np.isfinite(pred)))
+    if bad:
+        return f"{bad} non-finite predicted radiance value(s) ({where})"
+    scale = float(np.mean(np.abs(pred))) if pred.size else 0.0
+    neg = int(np.count_nonzero(pred < -NEGATIVE_RTOL * scale))
+    if neg:
+        return f"{neg} of {pred.size} predicted radiance values negative ({where}, down to {float(pred.min()):.3g})"
+    return None
+
+
+def _admissible(cands: dict[str, Candidate]) -> list[str]:
+    ok = [m for m in RICHNESS if m in cands and cands[m].fitted and cands[m].determined and cands[m].radiance_check is None]
+    # Prefer physically plausible fits (an implausible one extrapolates outside what the lighting measured).
+    return [m for m in ok if cands[m].plausibility["plausible"]] or ok
+
+
+def _richest_within(names: list[str], score: dict[str, float]) -> tuple[str, float]:
+    best = min(score[m] for m in names)
+    return [m for m in names if score[m] <= best * (1 + SELECT_RTOL) + 1e-12][-1], best
+
+
+def choose(cands: dict[str, Candidate]) -> tuple[str, str, str]:
+    """``auto``'s choice: ``(model, reason, criterion)`` (module docstring)."""
+    ok = _admissible(cands)
+    if not ok:
+        return "diffuse", "no admissible candidate (determined, finite non-negative radiance); fell back to diffuse", "none"
+    rated = [m for m in ok if cands[m].relight is not None and cands[m].relight.value is not None]
+    if rated:
+        score = {m: cands[m].relight.value for m in rated}
+        chosen, best = _richest_within(rated, score)
+        method = cands[chosen].relight.method
+        return chosen, (f"smallest estimated relighting error ({method}): {score[chosen]:.4g}"
+                        + ("" if score[chosen] == best else f", within {SELECT_RTOL:.0%} of the best {best:.4g}")), method
+    held = [m for m in ok if cands[m].heldout_relative_rms is not None]
+    if not held:
+        return ok[-1], "richest admissible candidate (no held-out pixels, no relighting estimate)", "richness"
+    score = {m: cands[m].heldout_relative_rms for m in held}
+    chosen, best = _richest_within(held, score)
+    return chosen, (f"richest admissible model with held-out error (same lighting) within {SELECT_RTOL:.0%} of the best "
+                    f"({score[chosen]:.4g} vs {best:.4g}); no relighting estimate"), "held-out pixels"
+
+
+def fit_warnings(chosen: Candidate, ident: Identifiability, counts: PixelCounts) -> list[str]:
+    """Warnings about the chosen fit: unmeasured bands, ignored pixels, conditioning, plausibility, radiance."""
+    out, name, sysinfo = [], chosen.name, chosen.system
+    if ident.unobservable_bands:
+        out.append(f"bands {ident.unobservable_bands} have no lighting energy: not measured, left out")
+    if counts.non_finite:
+        out.append(f"{counts.non_finite} non-finite pixel(s) ignored")
+    if sysinfo is not None:
+        regularised = sysinfo.solver == "tikhonov"  # judge the system actually solved
+        cond = max((sysinfo.condition_number_regularised if regularised else sysinfo.condition_number) or [0.0])
+        if cond > COND_WARN:
+            remedies = "fewer bands or more scenes" if regularised else "try tikhonov, fewer bands or more scenes"
+            out.append(
+                f"{name}: {'regularised ' if regularised else ''}condition number {cond:.3g} > {COND_WARN:g}: "
+                f"directions the lighting barely excites may relight badly under other lighting ({remedies})"
+            )
+        if sysinfo.rows_used < 3 * sysinfo.unknowns:
+            out.append(f"{name}: only {sysinfo.rows_used} pixels for {sysinfo.unknowns} unknowns")
+    if chosen.plausibility is not None and not chosen.plausibility["plausible"]:
+        out.append(
+            f"{name}: not physically plausible ({chosen.plausibility}): the lighting did not constrain "
+            "the whole BRDF; relighting under other lighting is unreliable"
+        )
+    if chosen.radiance_check is not None:
+        out.append(f"{name}: {chosen.radiance_check}")
+    if not chosen.determined:
+        out.append(f"{name} is NOT determined by these data")
+    return out
