@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "brdfrig.cli.rig",
     "brdfrig.cli.capture",
     "brdfrig.cli.refit",
+    "brdfrig.cli.library",
     # offline, one step at a time
     "brdfrig.cli.merge",
     "brdfrig.cli.probe",
@@ -59,7 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # bad arguments (argparse printed its one line: exit 2), --help, --version
+        return int(exc.code or 0) if not isinstance(exc.code, str) else EXIT_USER_ERROR
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

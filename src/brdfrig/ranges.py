@@ -1,0 +1,88 @@
+"""Allowed ranges of numeric options and config keys: one checker for the CLI (argparse) and the TOML schema.
+
+A :class:`Range` states the bounds (and whether the value is an integer); it
+turns a value into a clear error naming the option or key, what is allowed
+and what was given.  NaN, inf and booleans are never numbers here.
+
+>>> Range(0, 1e7, open_lo=True).check(20000.0, "--full-well")
+20000.0
+>>> Range(0, 1e7, open_lo=True).check(0.0, "--full-well")
+Traceback (most recent call last):
+...
+brdfrig.errors.InputError: --full-well must be a number in (0, 1e+07], got 0.0
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass
+
+from brdfrig.errors import InputError
+
+__all__ = ["Range"]
+
+
+@dataclass(frozen=True)
+class Range:
+    """Closed (or half-open) interval ``[lo, hi]`` of allowed values; ``None`` = unbounded on that side."""
+
+    lo: float | None = None
+    hi: float | None = None
+    open_lo: bool = False
+    open_hi: bool = False
+    integer: bool = False
+
+    def text(self) -> str:
+        """The range in words, e.g. ``" in (0, 1]"``, ``" >= 1"`` (empty when unbounded)."""
+        lo, hi = (None if b is None else f"{b:g}" for b in (self.lo, self.hi))
+        if lo is not None and hi is not None:
+            return f" in {'(' if self.open_lo else '['}{lo}, {hi}{')' if self.open_hi else ']'}"
+        if lo is not None:
+            return f" {'>' if self.open_lo else '>='} {lo}"
+        if hi is not None:
+            return f" {'<' if self.open_hi else '<='} {hi}"
+        return ""
+
+    def contains(self, v: float) -> bool:
+        """Whether the (finite) number ``v`` is allowed."""
+        if self.lo is not None and (v < self.lo or (self.open_lo and v == self.lo)):
+            return False
+        return not (self.hi is not None and (v > self.hi or (self.open_hi and v == self.hi)))
+
+    def check(self, v, where: str, error: type[Exception] = InputError):
+        """``v`` as ``int``/``float`` if it is an allowed number, else ``error`` naming ``where``."""
+        kind = "an integer" if self.integer else "a number"
+        is_number = isinstance(v, int if self.integer else (int, float)) and not isinstance(v, bool)
+        if not is_number or not math.isfinite(v) or not self.contains(v):
+            raise error(f"{where} must be {kind}{self.text()}, got {v!r}".lstrip())
+        return int(v) if self.integer else float(v)
+
+    def parse(self, text: str, where: str, error: type[Exception] = InputError):
+        """A command-line string checked against the range (``error`` naming ``where`` otherwise)."""
+        try:
+            v = int(text) if self.integer else float(text)
+        except ValueError:
+            kind = "an integer" if self.integer else "a number"
+            raise error(f"{where} must be {kind}{self.text()}, got {text!r}".lstrip()) from None
+        return self.check(v, where, error)
+
+    def arg(self, what: str = ""):
+        """An argparse ``type=``: parses and checks one string (argparse names the option in its message)."""
+        def parse(text: str):
+            return self.parse(text, what, argparse.ArgumentTypeError)
+
+        parse.__name__ = "integer" if self.integer else "number"
+        return parse
+
+    def args(self, what: str = "each value", n: tuple[int, ...] | None = None):
+        """An argparse ``type=`` for comma-separated values, each checked (``n``: the allowed counts)."""
+        def parse(text: str) -> list:
+            values = [self.parse(t.strip(), what, argparse.ArgumentTypeError) for t in text.split(",")]
+            if n is not None and len(values) not in n:
+                raise argparse.ArgumentTypeError(
+                    f"needs {' or '.join(map(str, n))} comma-separated values, got {text!r}")
+            return values
+
+        parse.__name__ = "list"
+        return parse
