@@ -268,7 +268,7 @@ def test_merge_command_clip_radius_option(tmp_path, capsys):
         rel = np.abs(rgb / truth - 1).max()
         assert (rel < 0.02) if radius else (rel > 0.3), (radius, rel)
     assert main([*args, "--clip-radius", "-1", "-o", str(tmp_path / "bad.exr")]) == 2
-    assert "--clip-radius must be a non-negative" in capsys.readouterr().err
+    assert "--clip-radius: must be an integer in [0, 16], got '-1'" in capsys.readouterr().err
     assert not (tmp_path / "bad.exr").exists()
 
 

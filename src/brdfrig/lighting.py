@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from brdfrig.errors import InputError
 from brdfrig.fit.scene import Environment, LatLongMap, Scene
 from brdfrig.hdr.envmap import latlong_directions
 from brdfrig.hdr.sphere import sphere_pixels
@@ -44,14 +45,14 @@ def environment_from_latlong(image, rotation=None, *, name: str = "lighting") ->
     if img.ndim == 2:
         img = img[:, :, None]
     if img.ndim != 3 or min(img.shape) < 1:
-        raise ValueError(f"{name}: expected an (H, W) or (H, W, C) lat-long map, got shape {np.shape(image)}")
+        raise InputError(f"{name}: expected an (H, W) or (H, W, C) lat-long map, got shape {np.shape(image)}")
     if not np.all(np.isfinite(img)):
-        raise ValueError(f"{name}: {int(np.sum(~np.isfinite(img)))} non-finite radiance value(s)")
+        raise InputError(f"{name}: {int(np.sum(~np.isfinite(img)))} non-finite radiance value(s)")
     if np.any(img < 0):
-        raise ValueError(f"{name}: {int(np.sum(img < 0))} negative radiance value(s)")
+        raise InputError(f"{name}: {int(np.sum(img < 0))} negative radiance value(s)")
     rot = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
     if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-9):
-        raise ValueError(f"{name}: rotation must be a 3x3 orthogonal matrix")
+        raise InputError(f"{name}: rotation must be a 3x3 orthogonal matrix")
     h, w, c = img.shape
     dirs, omega = latlong_directions(h, w)
     img = np.ascontiguousarray(img)
@@ -69,7 +70,7 @@ def read_latlong(path, lmax: int | None = None) -> Environment:
     img = read_image(path)
     h, w = img.shape[:2]
     if lmax is not None and lmax > h // 2 - 1:
-        raise ValueError(f"{path}: a {w}x{h} lat-long map supports bands up to {h // 2 - 1}, --lmax is {lmax}")
+        raise InputError(f"{path}: a {w}x{h} lat-long map supports bands up to {h // 2 - 1}, --lmax is {lmax}")
     return environment_from_latlong(img, name=str(path))
 
 
@@ -95,7 +96,7 @@ def environment_from_probe(image, circle, *, mask=None, name: str = "probe", **c
     s = unwrap_probe(image, circle, mask=mask, **calibration)
     valid = s.valid & np.all(np.isfinite(s.radiance), axis=1) & (s.solid_angle > 0)
     if not np.any(valid):
-        raise ValueError(f"{name}: no usable mirror-ball pixel inside circle {tuple(circle)}")
+        raise InputError(f"{name}: no usable mirror-ball pixel inside circle {tuple(circle)}")
     return Environment(np.asarray(s.dirs[valid], np.float64), np.asarray(s.radiance[valid], np.float64),
                        np.asarray(s.solid_angle[valid], np.float64))
 
@@ -120,7 +121,7 @@ def scene_from_image(env: Environment, image, circle, *, margin_px: float = 2.0,
     if img.ndim == 2:
         img = img[:, :, None]
     if img.shape[2] != env.channels:
-        raise ValueError(f"{name}: image has {img.shape[2]} channel(s), the lighting {env.channels}")
+        raise InputError(f"{name}: image has {img.shape[2]} channel(s), the lighting {env.channels}")
     px = sphere_pixels(img.shape[:2], tuple(float(v) for v in circle), margin_px=margin_px)
     radiance = img[px.rows, px.cols]
     weights = np.where(np.all(np.isfinite(radiance), axis=1), px.weights, 0.0)

@@ -28,6 +28,7 @@ import json
 import sys
 from pathlib import Path
 
+from brdfrig.errors import InputError
 from brdfrig.evaluate.cache import CachedGroundTruth
 from brdfrig.evaluate.probes import box_downsample as _box_downsample
 from brdfrig.evaluate.measured import add_arguments as add_measured_arguments
@@ -83,7 +84,7 @@ def run(args) -> int:
     config = QUICK if args.quick else FULL
     if args.budget is not None:
         if not args.budget > 0:
-            raise ValueError(f"--budget must be a positive number of seconds, got {args.budget}")
+            raise InputError(f"--budget must be a positive number of seconds, got {args.budget}")
         config = dataclasses.replace(config, budget_s=args.budget)
     rows = MAP_ROWS["quick" if args.quick else "full"]
     probes = sorted([*args.probes.glob("*.hdr"), *args.probes.glob("*.exr")]) if args.probes.is_dir() else []

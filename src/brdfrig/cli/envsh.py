@@ -12,6 +12,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from brdfrig.errors import InputError
+
 DEFAULT_BANDS = (5, 15, 35)
 WINDOW_CHOICES = ("none", "hann", "lanczos")
 
@@ -21,9 +23,9 @@ def parse_bands(text: str) -> tuple[int, ...]:
     try:
         bands = sorted({int(b) for b in text.split(",") if b.strip()})
     except ValueError:
-        raise ValueError(f"--bands must be comma-separated integers, got {text!r}") from None
+        raise InputError(f"--bands must be comma-separated integers, got {text!r}") from None
     if not bands or bands[0] < 0 or bands[-1] > 200:
-        raise ValueError(f"--bands must list band limits in 0..200, got {text!r}")
+        raise InputError(f"--bands must list band limits in 0..200, got {text!r}")
     return tuple(bands)
 
 
@@ -64,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     bands = parse_bands(args.bands)
     out = Path(args.output)
     if out.suffix.lower() != ".png":
-        raise ValueError(f"--output must be a .png file, got {out}")
+        raise InputError(f"--output must be a .png file, got {out}")
     if not out.parent.is_dir():
         raise OSError(f"--output directory does not exist: {out.parent}")
     image = read_image(args.env).astype(np.float64)
@@ -72,11 +74,11 @@ def run(args: argparse.Namespace) -> int:
         image = np.repeat(image, 3, axis=2)
     h, w, _ = image.shape
     if w <= 2 * bands[-1]:
-        raise ValueError(f"{args.env}: a map {w} pixels wide resolves band limits up to {(w - 1) // 2}, not {bands[-1]}")
+        raise InputError(f"{args.env}: a map {w} pixels wide resolves band limits up to {(w - 1) // 2}, not {bands[-1]}")
     _, solid = latlong_directions(h, w)
     norm = np.sqrt((solid[..., None] * image**2).sum())
     if norm == 0:
-        raise ValueError(f"{args.env}: the map is black")
+        raise InputError(f"{args.env}: the map is black")
 
     coeffs = project_latlong(image, bands[-1])
     panels = [(f"original ({w}x{h})", image)]

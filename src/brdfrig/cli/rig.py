@@ -18,6 +18,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from brdfrig.errors import InputError
+
 CHECK_ANGLE_DEG = 10.0
 
 
@@ -159,7 +161,7 @@ def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Pa
 
 def run(args) -> int:
     if args.exposure <= 0:
-        raise ValueError(f"--exposure must be a positive time in seconds, got {args.exposure}")
+        raise InputError(f"--exposure must be a positive time in seconds, got {args.exposure}")
     table_s, camera_s, sim_opts, carries = _settings(args)
     failures = []
 

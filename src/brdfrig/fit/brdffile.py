@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from brdfrig._atomic import write_text
+from brdfrig.errors import InputError
 from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf"]
@@ -91,7 +92,7 @@ def load_brdf(path) -> tuple[FittedBRDF, dict]:
 
     Raises
     ------
-    ValueError
+    InputError (a ValueError)
         Not a brdfrig BRDF file, another format version, or corrupt content.
     OSError
         The file cannot be read.
@@ -100,13 +101,13 @@ def load_brdf(path) -> tuple[FittedBRDF, dict]:
     try:
         doc = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a brdfrig BRDF file (corrupt JSON: {exc})") from exc
+        raise InputError(f"{path}: not a brdfrig BRDF file (corrupt JSON: {exc})") from exc
     if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
-        raise ValueError(f"{path}: not a brdfrig BRDF file (format {doc.get('format') if isinstance(doc, dict) else None!r})")
+        raise InputError(f"{path}: not a brdfrig BRDF file (format {doc.get('format') if isinstance(doc, dict) else None!r})")
     if doc.get("version") != FORMAT_VERSION:
-        raise ValueError(f"{path}: BRDF file version {doc.get('version')!r} is not supported (this brdfrig reads {FORMAT_VERSION})")
+        raise InputError(f"{path}: BRDF file version {doc.get('version')!r} is not supported (this brdfrig reads {FORMAT_VERSION})")
     try:
         brdf = brdf_from_dict(doc["brdf"])
-    except (KeyError, ValueError) as exc:
-        raise ValueError(f"{path}: corrupt BRDF file: {exc}") from exc
+    except (KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
+        raise InputError(f"{path}: corrupt BRDF file: {exc}") from exc
     return brdf, doc.get("report", {})

@@ -59,6 +59,7 @@ import time
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar, nnls
 
+from brdfrig.errors import InputError
 from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar, oren_nayar_ab
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.groundtruth import render_ggx_basis, render_groundtruth
@@ -197,7 +198,7 @@ def _subsample(scenes: list[Scene], max_pixels: int, rng: np.random.Generator) -
     valid = [np.flatnonzero(np.asarray(s.weights) > 0) for s in scenes]
     total = sum(len(v) for v in valid)
     if total == 0:
-        raise ValueError("no pixel has a positive weight: nothing to fit")
+        raise InputError("no pixel has a positive weight: nothing to fit")
     n_fit = min(max_pixels, total - total // 4)
     take = rng.permutation(total)[: n_fit + min(max_pixels // 4, total - n_fit)]
     flat = np.concatenate(valid)
@@ -221,7 +222,7 @@ def _check_scenes(scenes: list[Scene]) -> int:
             raise ValueError(f"scene {k}: normals, radiance and weights differ in length")
         w = np.asarray(s.weights) > 0
         if not np.all(np.isfinite(np.asarray(s.radiance)[w])):
-            raise ValueError(f"scene {k}: non-finite radiance at a pixel with positive weight")
+            raise InputError(f"scene {k}: non-finite radiance at a pixel with positive weight")
     return channels
 
 

@@ -61,6 +61,7 @@ from typing import Sequence
 import numba as nb
 import numpy as np
 
+from brdfrig.errors import InputError
 __all__ = [
     "MergeResult",
     "SaturationWarning",
@@ -234,32 +235,32 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
 
 def _validate(frames, times, names) -> tuple[list[np.ndarray], np.ndarray, list[str]]:
     if len(frames) == 0:
-        raise ValueError("merge: the bracket has no frames")
+        raise InputError("merge: the bracket has no frames")
     names = list(names) if names is not None else [f"frame {k}" for k in range(len(frames))]
     if len(names) != len(frames):
-        raise ValueError(f"merge: {len(names)} names for {len(frames)} frames")
+        raise InputError(f"merge: {len(names)} names for {len(frames)} frames")
     if times is None:
-        raise ValueError("merge: exposure times are missing")
+        raise InputError("merge: exposure times are missing")
     times = np.asarray(times, dtype=float).ravel()
     if times.size != len(frames):
-        raise ValueError(f"merge: {times.size} exposure times for {len(frames)} frames")
+        raise InputError(f"merge: {times.size} exposure times for {len(frames)} frames")
     for name, t in zip(names, times):
         if not (np.isfinite(t) and t > 0):
-            raise ValueError(f"merge: {name}: exposure time must be a positive number, got {t}")
+            raise InputError(f"merge: {name}: exposure time must be a positive number, got {t}")
     arrays = []
     for name, f in zip(names, frames):
         f = np.asarray(f)
         if f.ndim == 2:
             f = f[:, :, None]
         if f.ndim != 3:
-            raise ValueError(f"merge: {name}: expected an (H, W, C) image, got shape {f.shape}")
+            raise InputError(f"merge: {name}: expected an (H, W, C) image, got shape {f.shape}")
         if arrays and f.shape != arrays[0].shape:
-            raise ValueError(f"merge: {name} has size {f.shape}, {names[0]} has {arrays[0].shape}: "
+            raise InputError(f"merge: {name} has size {f.shape}, {names[0]} has {arrays[0].shape}: "
                              "a bracket must have one image size")
         if not (np.issubdtype(f.dtype, np.integer) or np.issubdtype(f.dtype, np.floating)):
-            raise ValueError(f"merge: {name}: unsupported pixel type {f.dtype}")
+            raise InputError(f"merge: {name}: unsupported pixel type {f.dtype}")
         if np.issubdtype(f.dtype, np.floating) and not np.all(np.isfinite(f)):
-            raise ValueError(f"merge: {name}: contains NaN/inf pixel values")
+            raise InputError(f"merge: {name}: contains NaN/inf pixel values")
         arrays.append(f)
     return arrays, times, names
 
@@ -593,17 +594,17 @@ def merge_bracket(
     """
     arrays, nominal, names = _validate(frames, times, names)
     if weighting not in ("optimal", "debevec"):
-        raise ValueError(f"merge: weighting must be 'optimal' or 'debevec', got {weighting!r}")
+        raise InputError(f"merge: weighting must be 'optimal' or 'debevec', got {weighting!r}")
     if not 0 <= black_threshold < clip_threshold <= 1:
-        raise ValueError(f"merge: need 0 <= black_threshold < clip_threshold <= 1, got "
+        raise InputError(f"merge: need 0 <= black_threshold < clip_threshold <= 1, got "
                          f"{black_threshold}, {clip_threshold}")
     if saturation is None:
         dt = arrays[0].dtype
         saturation = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else 1.0
     if not saturation > 0:
-        raise ValueError(f"merge: saturation must be positive, got {saturation}")
+        raise InputError(f"merge: saturation must be positive, got {saturation}")
     if isinstance(clip_radius, bool) or not isinstance(clip_radius, (int, np.integer)) or clip_radius < 0:
-        raise ValueError(f"merge: clip_radius must be a non-negative integer (pixels), got {clip_radius!r}")
+        raise InputError(f"merge: clip_radius must be a non-negative integer (pixels), got {clip_radius!r}")
 
     shifts = None
     if align and len(arrays) > 1:

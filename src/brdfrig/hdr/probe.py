@@ -35,6 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
+from brdfrig.errors import InputError
 from brdfrig.hdr import envmap
 
 __all__ = [
@@ -102,11 +103,11 @@ def check_circle_in_frame(shape, circle, what: str = "probe circle") -> tuple[fl
     """Validate a circle (cx, cy, r) against an image shape; ValueError if it is not fully inside the frame."""
     c = np.asarray(circle, dtype=float)
     if c.shape != (3,) or not np.all(np.isfinite(c)) or c[2] <= 0:
-        raise ValueError(f"{what} must be three finite numbers cx,cy,r with r > 0, got {circle!r}")
+        raise InputError(f"{what} must be three finite numbers cx,cy,r with r > 0, got {circle!r}")
     cx, cy, r = (float(v) for v in c)
     h, w = shape[:2]
     if cx - r < 0 or cy - r < 0 or cx + r > w or cy + r > h:
-        raise ValueError(f"{what} ({cx:.2f}, {cy:.2f}, {r:.2f}) extends outside the {w}x{h} image")
+        raise InputError(f"{what} ({cx:.2f}, {cy:.2f}, {r:.2f}) extends outside the {w}x{h} image")
     return cx, cy, r
 
 
@@ -139,10 +140,10 @@ def _box_mean(image: np.ndarray, box, name: str) -> np.ndarray:
     b = np.asarray(box, dtype=float)
     h, w = image.shape[:2]
     if b.shape != (4,) or not np.all(np.isfinite(b)):
-        raise ValueError(f"{name} must be a pixel box x0,y0,x1,y1, got {box!r}")
+        raise InputError(f"{name} must be a pixel box x0,y0,x1,y1, got {box!r}")
     x0, y0, x1, y1 = (int(round(v)) for v in b)
     if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
-        raise ValueError(f"{name} ({x0},{y0},{x1},{y1}) is empty or outside the {w}x{h} image")
+        raise InputError(f"{name} ({x0},{y0},{x1},{y1}) is empty or outside the {w}x{h} image")
     return image[y0:y1, x0:x1].reshape(-1, image.shape[2]).mean(axis=0)
 
 
@@ -171,10 +172,10 @@ def albedo_from_patches(image: np.ndarray, direct_box, reflected_box) -> np.ndar
     direct = _box_mean(image, direct_box, "direct patch box")
     reflected = _box_mean(image, reflected_box, "reflected patch box")
     if np.any(direct <= 0) or not np.all(np.isfinite(direct)):
-        raise ValueError(f"direct patch box {tuple(direct_box)} has no positive radiance: {direct}")
+        raise InputError(f"direct patch box {tuple(direct_box)} has no positive radiance: {direct}")
     albedo = reflected / direct
     if np.any(albedo <= 0) or np.any(albedo > 1.5):
-        raise ValueError(f"albedo from patches {albedo} is implausible (expected in (0, 1]): check the boxes")
+        raise InputError(f"albedo from patches {albedo} is implausible (expected in (0, 1]): check the boxes")
     return albedo
 
 
@@ -221,7 +222,7 @@ def calibrate_probe(
     image = np.asarray(image, dtype=np.float64)
     a = np.ones(image.shape[2]) if albedo is None else np.broadcast_to(np.asarray(albedo, float), (image.shape[2],))
     if np.any(~np.isfinite(a)) or np.any(a <= 0):
-        raise ValueError(f"probe albedo must be positive, got {albedo}")
+        raise InputError(f"probe albedo must be positive, got {albedo}")
     gain = np.broadcast_to(a, image.shape).copy()
     if fresnel is not None:
         dx, dy = _ball_offsets(image.shape, circle)
@@ -271,9 +272,9 @@ def unwrap_probe(
         raise ValueError(f"probe image must be (H, W) or (H, W, C), got shape {image.shape}")
     circle = check_circle_in_frame(image.shape, circle)
     if not 0 < rim <= 1:
-        raise ValueError(f"rim must be in (0, 1], got {rim}")
+        raise InputError(f"rim must be in (0, 1], got {rim}")
     if not 0 <= camera_mask_deg < 180:
-        raise ValueError(f"camera mask angle must be in [0, 180) degrees, got {camera_mask_deg}")
+        raise InputError(f"camera mask angle must be in [0, 180) degrees, got {camera_mask_deg}")
     dirs, solid, inside = envmap.mirrorball_directions(image.shape[:2], circle)
     radiance = calibrate_probe(image, circle, albedo=albedo, fresnel=fresnel, albedo_angle_deg=albedo_angle_deg)
     dx, dy = _ball_offsets(image.shape, circle)
@@ -354,7 +355,7 @@ def average_rotations(
     images = [np.asarray(im, dtype=np.float64) for im in images]
     images = [im[:, :, None] if im.ndim == 2 else im for im in images]
     if any(im.shape != images[0].shape for im in images):
-        raise ValueError("average_rotations: the probe images have different sizes: "
+        raise InputError("average_rotations: the probe images have different sizes: "
                          + ", ".join(str(im.shape) for im in images))
     if statistic not in ("median", "trimmed"):
         raise ValueError(f"average_rotations: statistic must be 'median' or 'trimmed', got {statistic!r}")
@@ -414,7 +415,7 @@ def probe_to_latlong(
         image = image[:, :, None]
     circle = check_circle_in_frame(image.shape, circle)
     if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 8 or width % 2:
-        raise ValueError(f"lat-long width must be an even integer >= 8, got {width!r}")
+        raise InputError(f"lat-long width must be an even integer >= 8, got {width!r}")
     from scipy.ndimage import map_coordinates
 
     radiance = calibrate_probe(image, circle, albedo=albedo, fresnel=fresnel, albedo_angle_deg=albedo_angle_deg)

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from brdfrig.errors import InputError
 from brdfrig.hdr.exr import read_oiio
 
 __all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw"]
@@ -95,7 +96,7 @@ def decode_raw(path: str | os.PathLike) -> np.ndarray:
                 user_flip=0,
             )
     except (rawpy.LibRawError, OSError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot decode raw file (truncated, corrupt or unsupported): "
+        raise InputError(f"{path}: cannot decode raw file (truncated, corrupt or unsupported): "
                          f"{type(exc).__name__}: {exc}") from None
     return rgb16.astype(np.float32) / np.float32(65535.0)
 
@@ -127,7 +128,7 @@ def read_frame(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
     else:
         image = np.repeat(pixels[:, :, :1], 3, axis=2)
     if not np.all(np.isfinite(image)):
-        raise ValueError(f"{path}: NaN/inf pixel values")
+        raise InputError(f"{path}: NaN/inf pixel values")
     return np.ascontiguousarray(image), is_float
 
 
@@ -156,7 +157,7 @@ def read_exposure(path: str | os.PathLike) -> Exposure:
         raise FileNotFoundError(f"{path}: no such file")
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: cannot read metadata: {oiio.geterror()}")
+        raise InputError(f"{path}: cannot read metadata: {oiio.geterror()}")
     try:
         spec = inp.spec()
         time_s = spec.getattribute("ExposureTime")
@@ -167,7 +168,7 @@ def read_exposure(path: str | os.PathLike) -> Exposure:
     finally:
         inp.close()
     if time_s is None or not np.isfinite(float(time_s)) or float(time_s) <= 0:
-        raise ValueError(f"{path}: no exposure time in the file's metadata (EXIF ExposureTime); "
+        raise InputError(f"{path}: no exposure time in the file's metadata (EXIF ExposureTime); "
                          "give the times explicitly (e.g. --times)")
 
     def _opt(value) -> float:

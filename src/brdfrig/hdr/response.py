@@ -25,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
+from brdfrig.errors import InputError
 __all__ = ["ResponseCurve", "recover_response", "linearize"]
 
 
@@ -99,12 +100,12 @@ def recover_response(
     frames = [f[:, :, None] if f.ndim == 2 else f for f in frames]
     times = np.asarray(times, dtype=float)
     if len(frames) < 2 or len(times) != len(frames):
-        raise ValueError(f"response: need >= 2 frames with one exposure time each, got {len(frames)} frames "
+        raise InputError(f"response: need >= 2 frames with one exposure time each, got {len(frames)} frames "
                          f"and {len(times)} times")
     if any(f.shape != frames[0].shape for f in frames):
         raise ValueError("response: the frames of a bracket must have one shape")
     if n_samples * (len(frames) - 1) <= levels:
-        raise ValueError(f"response: n_samples * (K - 1) = {n_samples * (len(frames) - 1)} must exceed "
+        raise InputError(f"response: n_samples * (K - 1) = {n_samples * (len(frames) - 1)} must exceed "
                          f"levels = {levels}")
     rng = np.random.default_rng(seed)
     codes = np.arange(levels) / (levels - 1)
@@ -122,7 +123,7 @@ def recover_response(
         zi = zi[weight[zi].sum(axis=1) > 0]  # pixels black or saturated in every frame carry no information
         n, k = zi.shape
         if n * (k - 1) <= levels // 4:
-            raise ValueError(f"response: only {n} sampled pixels are neither black nor saturated in every frame")
+            raise InputError(f"response: only {n} sampled pixels are neither black nor saturated in every frame")
         rows_d = np.arange(n * k)
         w = weight[zi].ravel()
         # Data rows: w (g[z] - lnE_i) = w ln t_j.  Unknowns: g (levels) then lnE (n).
