@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 PROBE_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "probes"
+
+
+def pytest_configure(config):
+    """Fits recorded by commands under test go to a private catalogue, never the user's library."""
+    os.environ["BRDFRIG_LIBRARY"] = str(Path(tempfile.mkdtemp(prefix="brdfrig-test-library-")) / "library.sqlite")
 
 
 def probe_paths() -> list[Path]:

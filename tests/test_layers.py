@@ -15,10 +15,11 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "brdfrig"
 
-BASE = {"errors", "_atomic"}
+BASE = {"errors", "_atomic", "ranges"}
 ALLOWED: dict[str, set[str]] = {
     "errors": set(),
     "_atomic": {"errors"},
+    "ranges": {"errors"},
     "rig": BASE | {"rig"},
     "hdr": BASE | {"hdr"},
     "fit": BASE | {"fit"},

@@ -31,11 +31,13 @@ from typing import Callable
 
 import numpy as np
 
+from brdfrig.errors import ConfigError, StoreError
 from brdfrig.session.config import FitPreset, SessionConfig, stored_session_config
 from brdfrig._atomic import write_bytes as atomic_write_bytes
 from brdfrig.session.store import SessionStore
 from brdfrig.fit.brdffile import jsonable
 from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.report import FitReport, summary_line
 
 __all__ = [
     "MergedFrame",
@@ -68,7 +70,7 @@ class SampleResult:
 
     name: str
     brdf: object
-    report: dict
+    report: FitReport
     brdf_path: Path
     figure_path: Path | None
     stats: dict
@@ -97,7 +99,7 @@ def open_verified(session_dir: str | Path) -> tuple[SessionStore, SessionConfig]
     store = SessionStore.open(session_dir)
     check = store.verify(prefix="raw/")
     if not check.passed:
-        raise ValueError(
+        raise StoreError(
             f"session {store.root} fails verification, refusing to process it: {check.describe()} "
             "(restore the files from a backup, or `brdfrig capture resume` to shoot them again)"
         )
@@ -122,7 +124,7 @@ def check_complete(store: SessionStore, config: SessionConfig) -> None:
         if (s, a) not in groups
     ]
     if missing:
-        raise ValueError(
+        raise StoreError(
             f"session {store.root} is incomplete ({', '.join(missing)} not shot): "
             f"finish it with `brdfrig capture resume {store.root}`"
         )
@@ -192,7 +194,7 @@ def scene_lighting(config: SessionConfig, merged: dict[tuple[int, float], Merged
 
     probe = config.plan.probe
     if probe.circle is None:
-        raise ValueError(f"[plan.probe] of {config.source} has no 'circle' = [cx, cy, r]")
+        raise ConfigError(f"[plan.probe] of {config.source} has no 'circle' = [cx, cy, r]")
     kwargs = {"rim": probe.rim}
     if probe.albedo is not None:
         kwargs["albedo"] = probe.albedo
@@ -215,7 +217,7 @@ def sample_scenes(config: SessionConfig, merged: dict[tuple[int, float], MergedF
     out: dict[str, tuple[list, object]] = {}
     for sample in config.plan.samples:
         if sample.circle is None:
-            raise ValueError(f"[[plan.samples]] {sample.name!r} of {config.source} has no 'circle' = [cx, cy, r]")
+            raise ConfigError(f"[[plan.samples]] {sample.name!r} of {config.source} has no 'circle' = [cx, cy, r]")
         shape = next(iter(merged.values())).radiance.shape[:2]
         px = sphere_pixels(shape, sample.circle)
         scenes = []
@@ -262,7 +264,7 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
              f"solver {fit.solver}")
         res = fit_brdf(scenes, model=fit.model, lmax=fit.lmax, pmax=fit.pmax, solver=fit.solver, progress=progress)
         brdf_path = results_dir / f"{name}.brdf.json"
-        report = dict(res.report)
+        report = res.report
         save_brdf(brdf_path, res.brdf, report,
                   provenance={"session": str(store.root), "sample": name})
         own = []
@@ -279,11 +281,11 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
         result.samples.append(SampleResult(name, res.brdf, report, brdf_path, figure_path, stats))
         stats_all["samples"][name] = {**stats, "brdf": brdf_path.name, "figure": figure_path and figure_path.name,
                                       "report": jsonable(report)}
-        if not result.samples[:-1] and report.get("identifiability_summary"):
-            echo(report["identifiability_summary"])  # depends on the lighting only: the same for every sample
-        echo(f"  {name}: {_fit_summary(report)}; image error {100 * stats['self_relative_rms_mean']:.2f}% "
+        if not result.samples[:-1]:
+            echo(report.identifiability_summary)  # depends on the lighting only: the same for every sample
+        echo(f"  {name}: {summary_line(report)}; image error {100 * stats['self_relative_rms_mean']:.2f}% "
              f"(relative RMS over {len(scenes)} scene(s)) -> {brdf_path}")
-        for warning in report.get("warnings", []):
+        for warning in report.warnings:
             echo(f"  {name}: warning: {warning}")
     atomic_write_bytes(results_dir / "stats.json", json.dumps(jsonable(stats_all), indent=1).encode())
     result.results_dir = results_dir = store.commit_results(results_dir)
@@ -293,16 +295,3 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     store.append("fit", results=str(results_dir.relative_to(store.root)), fit=stats_all["fit"],
                  samples={k: v["model"] for k, v in stats_all["samples"].items()})
     return result
-
-
-def _fit_summary(report: dict) -> str:
-    """One line from a ``fit_brdf`` report: chosen model and why, rank and condition number."""
-    chosen = report.get("chosen_model", "?")
-    text = f"model {chosen} ({report.get('reason', '')})"
-    cand = report.get("candidates", {}).get(chosen, {})
-    rank, cond = cand.get("rank"), cand.get("condition_number")
-    if rank is not None and cand.get("unknowns") is not None:
-        text += f", rank {min(np.atleast_1d(rank))} of {cand['unknowns']} unknowns"
-    if cond is not None:
-        text += f", condition number {max(np.atleast_1d(cond)):.3g}"
-    return text

@@ -128,10 +128,22 @@ def record(library: Library, refit: SessionRefit) -> int:
     return new
 
 
-def _task(session_dir: str, preset: dict | None, batch_id: str) -> SessionRefit:
+def preset_for(session_dir, overrides: dict | None) -> FitPreset | None:
+    """The session's own fit preset with ``overrides`` (a partial ``[fit]`` table) applied; None if no overrides."""
+    if not overrides:
+        return None
+    from brdfrig.session.config import stored_session_config
+    from brdfrig.session.store import SessionStore
+
+    store = SessionStore.open(session_dir)
+    own = stored_session_config(store.config, str(store.root)).fit
+    return fit_preset_from_dict({**asdict(own), **overrides}, "the fit options")
+
+
+def _task(session_dir: str, overrides: dict | None, batch_id: str) -> SessionRefit:
     """What one Dask task runs (a module-level function: workers import it by name)."""
-    fit = None if preset is None else fit_preset_from_dict(preset, "the batch's fit options")
-    return refit_session(session_dir, fit, progress=False, echo=lambda _line: None, batch_id=batch_id)
+    return refit_session(session_dir, preset_for(session_dir, overrides), progress=False, echo=lambda _line: None,
+                         batch_id=batch_id)
 
 
 def _client(workers: int, scheduler: str | None):
@@ -143,7 +155,7 @@ def _client(workers: int, scheduler: str | None):
     return Client(cluster), cluster
 
 
-def refit_batch(root, fit: FitPreset | None = None, *, library: Library, workers: int = 2,
+def refit_batch(root, overrides: dict | None = None, *, library: Library, workers: int = 2,
                 scheduler: str | None = None, progress: bool = True) -> BatchResult:
     """Refit every session below ``root`` as one Dask task each, recording each fit in ``library``.
 
@@ -151,8 +163,8 @@ def refit_batch(root, fit: FitPreset | None = None, *, library: Library, workers
     ----------
     root : path-like
         Directory searched for sessions.
-    fit : FitPreset or None
-        Fit settings for every session (None: each session's own).
+    overrides : dict or None
+        Fit settings (keys of a ``[fit]`` table) applied over each session's own.
     library : Library
         The catalogue the fits are recorded in (by this process, as tasks finish).
     workers : int
@@ -169,12 +181,11 @@ def refit_batch(root, fit: FitPreset | None = None, *, library: Library, workers
 
     sessions = find_sessions(root)
     batch_id = uuid.uuid4().hex
-    preset = None if fit is None else asdict(fit)
     out = BatchResult()
     t0 = time.perf_counter()
     client, cluster = _client(workers, scheduler)
     try:
-        futures = {client.submit(_task, str(s), preset, batch_id, key=f"refit-{batch_id}-{i}", pure=False,
+        futures = {client.submit(_task, str(s), overrides, batch_id, key=f"refit-{batch_id}-{i}", pure=False,
                                  retries=TASK_RETRIES): s for i, s in enumerate(sessions)}
         bar = tqdm(total=len(futures), desc="refit", unit="session", file=sys.stderr, disable=not progress,
                    dynamic_ncols=True)
