@@ -46,6 +46,8 @@ def test_quick_demo_runs_end_to_end(installed, tmp_path):
     r = subprocess.run([sys.executable, "-m", "brdfrig", "demo", "--quick", "--dir", str(out), "--no-progress"],
                        cwd=tmp_path, env=installed, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
+    # a fresh install has no compiled kernels: the first computing command says it compiles them
+    assert "compiling numerical kernels (numba) once" in r.stderr
     assert "identifiability:" in r.stdout and "session complete" not in r.stderr
     rows = dict(re.findall(r"^\s+(matte|glossy)\s+\w+\s+\S+\s+([\d.]+)%", r.stdout, re.M))
     assert set(rows) == {"matte", "glossy"}, r.stdout

@@ -64,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # bad arguments (argparse printed its one line: exit 2), --help, --version
         return int(exc.code or 0) if not isinstance(exc.code, str) else EXIT_USER_ERROR
+    _announce_compilation(args.command)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
@@ -82,6 +83,23 @@ def main(argv: list[str] | None = None) -> int:
               "please report it to the brdfrig issue tracker with the command line and the traceback above",
               file=sys.stderr)
         return EXIT_BUG
+
+
+#: Commands that run numba kernels (the others only read files or print).
+COMPUTING = frozenset({"demo", "capture", "refit", "merge", "probe", "envsh", "fit", "render", "bench"})
+
+
+def _announce_compilation(command: str) -> None:
+    """Say so on stderr when numba has no compiled kernels cached for brdfrig yet (the first run after install)."""
+    if command not in COMPUTING:
+        return
+    from pathlib import Path
+
+    package = Path(__file__).resolve().parents[1]
+    cache = Path(os.environ["NUMBA_CACHE_DIR"]) if os.environ.get("NUMBA_CACHE_DIR") else package
+    if not any(cache.rglob("*.nbi")):
+        print("brdfrig: first run after installation: compiling numerical kernels (numba) once; "
+              "later runs start faster", file=sys.stderr, flush=True)
 
 
 def user_message(exc: BaseException) -> str:
