@@ -193,6 +193,66 @@ def _model_rank(spec: ModelSpec, coeffs: list[np.ndarray], theta_max: float) -> 
     return min(_equilibrated_rank(design[:, :, ch]) for ch in range(design.shape[2]))
 
 
+def _order_ranks(coeffs: list[np.ndarray], observable: list[int], lmax: int):
+    """Per Fourier order j: worst-channel rank of the bands l >= j, their count, and which bands are determined."""
+    order_rank = np.zeros(lmax + 1, dtype=np.int64)
+    order_unknowns = np.zeros(lmax + 1, dtype=np.int64)
+    band_det = np.zeros((lmax + 1, lmax + 1), dtype=bool)
+    for j in range(lmax + 1):
+        cols = [l for l in observable if l >= j]
+        order_unknowns[j] = len(cols)
+        if not cols:
+            continue
+        ranks, det = [], np.ones(len(cols), dtype=bool)
+        for ch in range(coeffs[0].shape[1]):
+            _, s, vt = np.linalg.svd(_lighting_matrix(coeffs, observable, j, ch), full_matrices=False)
+            k = numerical_rank(s)
+            ranks.append(k)
+            # e_l is in the row space iff its projection onto the leading right singular vectors has norm 1.
+            det &= np.sum(vt[:k] ** 2, axis=0) > 1.0 - 1e-6
+        order_rank[j] = min(ranks)
+        band_det[cols, j] = det
+    return order_rank, order_unknowns, band_det
+
+
+def _full_lmax_determined(coeffs: list[np.ndarray], observable: list[int], lmax: int) -> int:
+    """Largest band limit whose bands every Fourier order separates (-1: none)."""
+    full_lmax = -1
+    for lp in range(lmax + 1):
+        sub = [l for l in observable if l <= lp]
+        if not sub or not all(_separated(coeffs, sub, j) for j in range(lp + 1)):
+            break
+        full_lmax = lp
+    return full_lmax
+
+
+def _model_entry(kind: str, result: "Identifiability", coeffs: list[np.ndarray], theta_max: float) -> dict:
+    """Unknowns, design rank on the ring grid, whether determined and why, for one linear model."""
+    observable = result.observable_bands
+    spec = ModelSpec(kind, result.lmax, result.pmax, bands=tuple(observable))
+    if spec.n_unknowns == 0:
+        return {"unknowns": 0, "rank": 0, "determined": False, "reason": "no observable band"}
+    rank = _model_rank(spec, coeffs, theta_max)
+    entry = {"unknowns": spec.n_unknowns, "rank": int(rank)}
+    full_rank = rank == spec.n_unknowns
+    if kind != "full":
+        entry["determined"] = bool(full_rank)
+        entry["reason"] = "full column rank" if full_rank else "design rank-deficient"
+        return entry
+    separable = result.full_lmax_determined >= max(observable)
+    entry["determined"] = bool(full_rank and separable)
+    if not separable:
+        entry["reason"] = (
+            f"order 0 separates {result.order_rank[0]} of {result.order_unknowns[0]} bands; "
+            f"needs >= {len(observable)} scenes with differing lighting (has {len(coeffs)})"
+        )
+    elif not full_rank:
+        entry["reason"] = "design rank-deficient along the outgoing bands"
+    else:
+        entry["reason"] = "every band separated at every Fourier order"
+    return entry
+
+
 def analyse_lighting(
     coeffs: list[np.ndarray],
     lmax: int,
@@ -216,71 +276,21 @@ def analyse_lighting(
     if not coeffs:
         raise ValueError("identifiability needs at least one scene's lighting")
     coeffs = [np.asarray(c, dtype=np.float64) for c in coeffs]
-    nc = coeffs[0].shape[1]
     energy = _band_energy(coeffs, lmax)
     observable = [l for l in range(lmax + 1) if energy[l] > ENERGY_RTOL]
-    unobservable = [l for l in range(lmax + 1) if l not in observable]
-
-    order_rank = np.zeros(lmax + 1, dtype=np.int64)
-    order_unknowns = np.zeros(lmax + 1, dtype=np.int64)
-    band_det = np.zeros((lmax + 1, lmax + 1), dtype=bool)
-    for j in range(lmax + 1):
-        cols = [l for l in observable if l >= j]
-        order_unknowns[j] = len(cols)
-        if not cols:
-            continue
-        ranks, det = [], np.ones(len(cols), dtype=bool)
-        for ch in range(nc):
-            _, s, vt = np.linalg.svd(_lighting_matrix(coeffs, observable, j, ch), full_matrices=False)
-            k = numerical_rank(s)
-            ranks.append(k)
-            # e_l is in the row space iff its projection onto the leading right singular vectors has norm 1.
-            det &= np.sum(vt[:k] ** 2, axis=0) > 1.0 - 1e-6
-        order_rank[j] = min(ranks)
-        band_det[cols, j] = det
-
-    full_lmax = -1
-    for lp in range(lmax + 1):
-        sub = [l for l in observable if l <= lp]
-        if not sub or not all(_separated(coeffs, sub, j) for j in range(lp + 1)):
-            break
-        full_lmax = lp
-
+    order_rank, order_unknowns, band_det = _order_ranks(coeffs, observable, lmax)
     result = Identifiability(
         lmax=lmax,
         pmax=pmax,
         n_scenes=len(coeffs),
         band_energy=energy,
         observable_bands=observable,
-        unobservable_bands=unobservable,
+        unobservable_bands=[l for l in range(lmax + 1) if l not in observable],
         order_rank=order_rank,
         order_unknowns=order_unknowns,
         band_determined=band_det,
-        full_lmax_determined=full_lmax,
+        full_lmax_determined=_full_lmax_determined(coeffs, observable, lmax),
     )
-    theta_max = np.radians(theta_max_deg)
     for kind in models:
-        spec = ModelSpec(kind, lmax, pmax, bands=tuple(observable))
-        if spec.n_unknowns == 0:
-            result.models[kind] = {"unknowns": 0, "rank": 0, "determined": False, "reason": "no observable band"}
-            continue
-        rank = _model_rank(spec, coeffs, theta_max)
-        entry = {"unknowns": spec.n_unknowns, "rank": int(rank)}
-        full_rank = rank == spec.n_unknowns
-        if kind == "full":
-            separable = full_lmax >= max(observable)
-            entry["determined"] = bool(full_rank and separable)
-            if not separable:
-                entry["reason"] = (
-                    f"order 0 separates {order_rank[0]} of {order_unknowns[0]} bands; "
-                    f"needs >= {len(observable)} scenes with differing lighting (has {len(coeffs)})"
-                )
-            elif not full_rank:
-                entry["reason"] = "design rank-deficient along the outgoing bands"
-            else:
-                entry["reason"] = "every band separated at every Fourier order"
-        else:
-            entry["determined"] = bool(full_rank)
-            entry["reason"] = "full column rank" if full_rank else "design rank-deficient"
-        result.models[kind] = entry
+        result.models[kind] = _model_entry(kind, result, coeffs, np.radians(theta_max_deg))
     return result
