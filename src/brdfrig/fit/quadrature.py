@@ -1,0 +1,252 @@
+"""Sharp-lobe quadrature of the rendering integral over a lat-long map (MATH.md pitfall 9).
+
+A lat-long map is radiance constant over each cell.  For one surface normal
+``n`` seen from ``v = (0, 0, 1)`` the samples of the rendering integral are
+
+- the cell centres, each carrying ``L_cell * dOmega_cell`` (one sample per cell),
+- except the cells whose centre lies within ``cone_deg`` of the mirror
+  direction ``r = 2 (n.v) n - v``: each is split into ``s`` rows (equal steps
+  of latitude) by ``s_lon = max(1, ceil(s * cos(phi_eq)))`` columns (equal
+  steps of longitude; ``phi_eq`` the cell's latitude edge nearest the equator,
+  so that sub-cells stay about square toward the poles and the equator row gets
+  ``s x s``), each sub-cell carrying ``L_cell`` times its exact solid angle
+  ``(dlam / s_lon) (sin phi_top - sin phi_bottom)`` at its centre direction.
+
+Samples below the horizon of ``n`` (``n.w <= 0``) are left out unless asked
+for.  The map's rotation is respected: the cone test and the subdivision are done
+in the map frame, directions are returned in the world frame.  An environment
+without a lat-long map falls back to its own point samples (no subdivision).
+
+:func:`lobe_quadrature` prepares the (numba-passable) :class:`LobeQuadrature`
+once per environment; :func:`lobe_samples` is a numba function, callable from
+other numba kernels (also inside ``prange``), that returns the samples of one
+normal.  Defaults (:data:`DEFAULT_CONE_DEG`, :data:`DEFAULT_SUBDIV`) come from a
+convergence study on the sharpest measured materials (docs in the module's test,
+tests/test_quadrature.py, and in :func:`subdivision_for`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from brdfrig.fit.scene import Environment
+
+__all__ = [
+    "DEFAULT_CONE_DEG",
+    "DEFAULT_SUBDIV",
+    "LobeQuadrature",
+    "lobe_quadrature",
+    "lobe_samples",
+    "lobe_sample_count",
+    "quadrature_samples",
+]
+
+DEFAULT_CONE_DEG = 20.0
+"""Half-angle (degrees) of the cone around the mirror direction whose cells are subdivided."""
+
+DEFAULT_SUBDIV = 12
+"""Sub-cells per cell side in the cone (``s``)."""
+
+
+class LobeQuadrature(NamedTuple):
+    """Arrays of the sharp-lobe quadrature of one environment (pass to :func:`lobe_samples`).
+
+    Attributes
+    ----------
+    dirs : (M, 3) float64
+        World directions of the cell centres (or of the point samples).
+    wrad : (M, C) float64
+        Radiance times solid angle of each cell (or point sample).
+    map_dirs : (M, 3) float64
+        Cell-centre directions in the map frame (unused for point samples).
+    image : (H, W, C) float64
+        The map's radiance per cell ((0, 0, C) for point samples).
+    rotation : (3, 3) float64
+        World direction of a map direction ``d``: ``rotation @ d``.
+    cos_cones : (T,) float64
+        Cosines of the cone half-angles, decreasing (widening cones; empty: no subdivision).
+    subdivs : (T,) int64
+        ``s`` of each cone: a cell takes the ``s`` of the narrowest cone holding its centre.
+    """
+
+    dirs: np.ndarray
+    wrad: np.ndarray
+    map_dirs: np.ndarray
+    image: np.ndarray
+    rotation: np.ndarray
+    cos_cones: np.ndarray
+    subdivs: np.ndarray
+
+
+def _tiers(cone_deg, subdiv) -> tuple[np.ndarray, np.ndarray]:
+    """Validated cone cosines (decreasing) and subdivisions of one or several nested cones."""
+    cones = np.atleast_1d(np.asarray(cone_deg, dtype=np.float64))
+    subs = np.atleast_1d(np.asarray(subdiv))
+    if cones.ndim != 1 or subs.shape != cones.shape:
+        raise ValueError(f"cone_deg and subdiv must be scalars or sequences of one length, got {cone_deg!r}, {subdiv!r}")
+    if not np.all((cones >= 0) & (cones <= 180)):
+        raise ValueError(f"cone_deg must be within [0, 180], got {cone_deg!r}")
+    if subs.dtype == bool or not np.all(np.mod(subs, 1) == 0) or np.any(subs < 1):
+        raise ValueError(f"subdiv must be integers >= 1, got {subdiv!r}")
+    order = np.argsort(cones, kind="stable")
+    cones, subs = cones[order], subs[order].astype(np.int64)
+    keep = subs > 1
+    return np.cos(np.radians(cones[keep])), np.ascontiguousarray(subs[keep])
+
+
+def lobe_quadrature(env: Environment, cone_deg=DEFAULT_CONE_DEG, subdiv=DEFAULT_SUBDIV) -> LobeQuadrature:
+    """Prepare the sharp-lobe quadrature of ``env`` (see the module docstring).
+
+    Parameters
+    ----------
+    env : Environment
+        With ``env.latlong`` set, its cells are integrated; otherwise its
+        samples with positive solid angle are used as they are.
+    cone_deg : float or sequence of float
+        Cone half-angle(s) in degrees, in [0, 180].  Several nested cones grade the
+        subdivision: a cell takes the ``subdiv`` of the narrowest cone holding its centre.
+    subdiv : int or sequence of int
+        ``s >= 1`` per cone (1: cell centres).
+    """
+    cos_cones, subdivs = _tiers(cone_deg, subdiv)
+    if env.latlong is None:
+        omega = np.asarray(env.solid_angle, dtype=np.float64)
+        keep = omega > 0
+        dirs = np.ascontiguousarray(np.asarray(env.dirs, dtype=np.float64)[keep])
+        wrad = np.ascontiguousarray(np.asarray(env.radiance, dtype=np.float64)[keep] * omega[keep, None])
+        c = wrad.shape[1]
+        return LobeQuadrature(dirs, wrad, dirs, np.zeros((0, 0, c)), np.eye(3), cos_cones[:0], subdivs[:0])
+    from brdfrig.hdr.envmap import latlong_directions  # same cell centres and solid angles as the Environment
+
+    image = np.ascontiguousarray(np.asarray(env.latlong.image, dtype=np.float64))
+    rot = np.ascontiguousarray(np.asarray(env.latlong.rotation, dtype=np.float64))
+    h, w, c = image.shape
+    map_dirs, omega = latlong_directions(h, w)
+    map_dirs = np.ascontiguousarray(map_dirs.reshape(-1, 3))
+    dirs = np.ascontiguousarray(map_dirs @ rot.T)
+    wrad = np.ascontiguousarray(image.reshape(-1, c) * omega.reshape(-1, 1))
+    return LobeQuadrature(dirs, wrad, map_dirs, image, rot, cos_cones, subdivs)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _mirror_in_map(q, nx, ny, nz):
+    """Mirror direction ``r = 2 (n.v) n - v`` of ``v = (0, 0, 1)``, in the map frame (``rotation^T r``)."""
+    rx, ry, rz = 2.0 * nz * nx, 2.0 * nz * ny, 2.0 * nz * nz - 1.0
+    rt = q.rotation
+    return (
+        rt[0, 0] * rx + rt[1, 0] * ry + rt[2, 0] * rz,
+        rt[0, 1] * rx + rt[1, 1] * ry + rt[2, 1] * rz,
+        rt[0, 2] * rx + rt[1, 2] * ry + rt[2, 2] * rz,
+    )
+
+
+@numba.njit(cache=True, fastmath=False)
+def _cell_columns(row, h, s):
+    """Sub-columns of a cone cell in ``row``: ``max(1, ceil(s cos(phi_eq)))``."""
+    top = 0.5 * math.pi - math.pi * row / h
+    bottom = top - math.pi / h
+    cos_eq = 1.0 if top * bottom <= 0.0 else max(math.cos(top), math.cos(bottom))
+    return max(1, min(s, int(math.ceil(s * cos_eq - 1e-9))))
+
+
+@numba.njit(cache=True, fastmath=False)
+def _cell_subdiv(q, rx, ry, rz, j):
+    """``s`` of cell ``j`` for the mirror direction ``r`` (map frame): 1 outside every cone."""
+    if q.image.shape[0] == 0 or q.cos_cones.shape[0] == 0:
+        return 1
+    cos_r = rx * q.map_dirs[j, 0] + ry * q.map_dirs[j, 1] + rz * q.map_dirs[j, 2]
+    if cos_r < q.cos_cones[-1]:
+        return 1
+    for t in range(q.cos_cones.shape[0]):
+        if cos_r >= q.cos_cones[t]:
+            return q.subdivs[t]
+    return 1
+
+
+@numba.njit(cache=True, fastmath=False)
+def lobe_sample_count(q, nx, ny, nz, horizon):
+    """Number of samples :func:`lobe_samples` returns for unit normal ``n`` (upper bound if ``horizon``)."""
+    m = q.dirs.shape[0]
+    h = q.image.shape[0]
+    w = max(q.image.shape[1], 1)
+    rx, ry, rz = _mirror_in_map(q, nx, ny, nz)
+    count = 0
+    for j in range(m):
+        s = _cell_subdiv(q, rx, ry, rz, j)
+        if s > 1:
+            count += s * _cell_columns(j // w, h, s)
+        elif not horizon or nx * q.dirs[j, 0] + ny * q.dirs[j, 1] + nz * q.dirs[j, 2] > 0.0:
+            count += 1
+    return count
+
+
+@numba.njit(cache=True, fastmath=False)
+def lobe_samples(q, nx, ny, nz, horizon=True):
+    """Quadrature samples for unit normal ``(nx, ny, nz)`` and view ``v = (0, 0, 1)``.
+
+    Parameters
+    ----------
+    q : LobeQuadrature
+    nx, ny, nz : float
+        Unit surface normal (world frame).
+    horizon : bool
+        Leave out samples with ``n.w <= 0``.
+
+    Returns
+    -------
+    dirs : (K, 3) float64
+        World directions the light arrives from.
+    wrad : (K, C) float64
+        Radiance times solid angle of each sample.
+    """
+    cap = lobe_sample_count(q, nx, ny, nz, horizon)
+    nc = q.wrad.shape[1]
+    dirs = np.empty((cap, 3))
+    wrad = np.empty((cap, nc))
+    m = q.dirs.shape[0]
+    h = q.image.shape[0]
+    w = max(q.image.shape[1], 1)
+    rx, ry, rz = _mirror_in_map(q, nx, ny, nz)
+    rt = q.rotation
+    k = 0
+    for j in range(m):
+        s = _cell_subdiv(q, rx, ry, rz, j)
+        if s > 1:
+            row, col = j // w, j % w
+            s_lon = _cell_columns(row, h, s)
+            dlam = 2.0 * math.pi / (w * s_lon)
+            top = 0.5 * math.pi - math.pi * row / h
+            for a in range(s):
+                p0 = top - math.pi * a / (h * s)
+                p1 = top - math.pi * (a + 1) / (h * s)
+                pc = top - math.pi * (a + 0.5) / (h * s)
+                omega = dlam * (math.sin(p0) - math.sin(p1))
+                cp, sp = math.cos(pc), math.sin(pc)
+                for b in range(s_lon):
+                    lam = -2.0 * math.pi * ((col + (b + 0.5) / s_lon) / w - 0.5)
+                    mx, my, mz = math.sin(lam) * cp, sp, math.cos(lam) * cp
+                    wx = rt[0, 0] * mx + rt[0, 1] * my + rt[0, 2] * mz
+                    wy = rt[1, 0] * mx + rt[1, 1] * my + rt[1, 2] * mz
+                    wz = rt[2, 0] * mx + rt[2, 1] * my + rt[2, 2] * mz
+                    if horizon and nx * wx + ny * wy + nz * wz <= 0.0:
+                        continue
+                    dirs[k, 0], dirs[k, 1], dirs[k, 2] = wx, wy, wz
+                    for c in range(nc):
+                        wrad[k, c] = q.image[row, col, c] * omega
+                    k += 1
+        elif not horizon or nx * q.dirs[j, 0] + ny * q.dirs[j, 1] + nz * q.dirs[j, 2] > 0.0:
+            dirs[k, 0], dirs[k, 1], dirs[k, 2] = q.dirs[j, 0], q.dirs[j, 1], q.dirs[j, 2]
+            for c in range(nc):
+                wrad[k, c] = q.wrad[j, c]
+            k += 1
+    return dirs[:k], wrad[:k]
+
+
+def quadrature_samples(q: LobeQuadrature, normal, horizon: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Python entry to :func:`lobe_samples` for one unit ``normal`` (3,): ``(dirs (K, 3), wrad (K, C))``."""
+    n = np.asarray(normal, dtype=np.float64).reshape(3)
+    return lobe_samples(q, float(n[0]), float(n[1]), float(n[2]), bool(horizon))
