@@ -13,6 +13,7 @@ imports nothing from brdfrig, so every layer (``rig`` included) may use it.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 
 __all__ = [
@@ -22,7 +23,7 @@ __all__ = [
     "StoreError",
     "DiskFullError",
     "DeviceError",
-    "disk_full",
+    "on_disk_full",
 ]
 
 
@@ -56,8 +57,18 @@ class DeviceError(BrdfrigError):
     """A device (turntable, camera) failed, refused or is not there."""
 
 
-def disk_full(exc: BaseException, what, hint: str = "free some space and run the command again") -> BaseException:
-    """``exc`` as a :class:`DiskFullError` naming ``what`` if it is ``ENOSPC``; otherwise ``exc`` itself."""
-    if isinstance(exc, DiskFullError) or not (isinstance(exc, OSError) and exc.errno == errno.ENOSPC):
-        return exc
-    return DiskFullError(errno.ENOSPC, f"disk full while writing {what}: {hint}")
+@contextlib.contextmanager
+def on_disk_full(hint: str):
+    """Re-raise a full disk (``DiskFullError`` or ``OSError(ENOSPC)``) in the block as ``DiskFullError`` + ``hint``.
+
+    >>> with on_disk_full("free some space, then run `brdfrig refit S`"):  # doctest: +SKIP
+    ...     run_pipeline("S")
+    """
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC:
+            raise
+        what = str(exc) if isinstance(exc, DiskFullError) else "disk full" + (
+            f" while writing {exc.filename}" if exc.filename else "")
+        raise DiskFullError(errno.ENOSPC, f"{what}: {hint}") from exc

@@ -50,22 +50,23 @@ class Range:
             return False
         return not (self.hi is not None and (v > self.hi or (self.open_hi and v == self.hi)))
 
+    def _error(self, where: str, got, error: type[Exception]) -> Exception:
+        kind = "an integer" if self.integer else "a number"
+        return error(f"{where} must be {kind}{self.text()}, got {got!r}".lstrip())
+
     def check(self, v, where: str, error: type[Exception] = InputError):
         """``v`` as ``int``/``float`` if it is an allowed number, else ``error`` naming ``where``."""
-        kind = "an integer" if self.integer else "a number"
         is_number = isinstance(v, int if self.integer else (int, float)) and not isinstance(v, bool)
         if not is_number or not math.isfinite(v) or not self.contains(v):
-            raise error(f"{where} must be {kind}{self.text()}, got {v!r}".lstrip())
+            raise self._error(where, v, error)
         return int(v) if self.integer else float(v)
 
     def parse(self, text: str, where: str, error: type[Exception] = InputError):
-        """A command-line string checked against the range (``error`` naming ``where`` otherwise)."""
+        """A command-line string checked against the range (``error`` naming ``where`` and quoting ``text``)."""
         try:
-            v = int(text) if self.integer else float(text)
-        except ValueError:
-            kind = "an integer" if self.integer else "a number"
-            raise error(f"{where} must be {kind}{self.text()}, got {text!r}".lstrip()) from None
-        return self.check(v, where, error)
+            return self.check(int(text) if self.integer else float(text), where, error)
+        except (ValueError, error):
+            raise self._error(where, text, error) from None
 
     def arg(self, what: str = ""):
         """An argparse ``type=``: parses and checks one string (argparse names the option in its message)."""

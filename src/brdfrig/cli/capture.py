@@ -4,7 +4,9 @@
 requested model needs) and shoots it into a new session directory; ``resume``
 finishes a stopped or killed session without reshooting what is stored and
 verified.  When the session is complete both run the pipeline (merge, probe,
-fit, BRDF files and figures) unless ``--no-fit``.
+fit, BRDF files and figures) unless ``--no-fit``.  Both hold the session's
+writer lock: a session in use by another process is refused ("session DIR in
+use by PID N", exit 2) before anything is written.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from brdfrig.session.runner import resume_session, run_session
+    from brdfrig.session.store import SessionStore
 
     prompt = None if args.yes else input
     progress = not args.no_progress
@@ -50,11 +53,22 @@ def run(args) -> int:
 
         config = load_session_config(args.plan, args.rig, args.fit_file)
         if args.dry_run:
+            from brdfrig.session.runner import preflight
+
+            preflight(config)
             echo(describe_plan(build_plan(config)))
             return 0
         status, store = run_session(config, args.out, prompt=prompt, progress=progress, echo=echo)
-    else:
+        with store.locked():
+            return _after_shooting(args, status, store, echo)
+    with SessionStore.open(args.dir).locked():
         status, store = resume_session(args.dir, prompt=prompt, progress=progress, echo=echo)
+        return _after_shooting(args, status, store, echo)
+
+
+def _after_shooting(args, status: str, store, echo) -> int:
+    """Report the shooting's outcome and fit a complete session (the caller holds the writer lock)."""
+    progress = not args.no_progress
     if status != "complete":
         echo(f"session paused at an operator prompt; continue with `brdfrig capture resume {store.root}`")
         return 0
@@ -64,7 +78,10 @@ def run(args) -> int:
         return 0
     from brdfrig.session.pipeline import run_pipeline
 
-    result = run_pipeline(store.root, progress=progress, echo=echo)
+    from brdfrig.errors import on_disk_full
+
+    with on_disk_full(f"the shots are stored; free some space, then run `brdfrig refit {store.root}`"):
+        result = run_pipeline(store.root, progress=progress, echo=echo)
     echo(f"results in {result.results_dir}")
     return 0
 

@@ -16,7 +16,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-MODEL_CHOICES = ("auto", "diffuse", "lobe", "microfacet", "full", "full+prior")
+from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.fit.registry import MODELS, SOLVERS
+from brdfrig.ranges import Range
+
+BANDS = Range(0, 30, integer=True)  # SH band limits
 
 
 def register(subparsers) -> None:
@@ -30,39 +34,44 @@ def register(subparsers) -> None:
                    help="lat-long lighting map and the sphere image taken under it (repeatable)")
     p.add_argument("--probe-scene", nargs=2, action="append", default=[], metavar=("PROBE", "IMAGE"),
                    help="mirror-ball image of the lighting and the sphere image taken under it (repeatable)")
-    p.add_argument("--model", choices=MODEL_CHOICES, default="auto", help="BRDF model (default: %(default)s)")
-    p.add_argument("--lmax", type=int, default=8, help="lighting band limit (default: %(default)s)")
-    p.add_argument("--pmax", type=int, default=8, help="outgoing band limit of the full model (default: %(default)s)")
-    p.add_argument("--solver", choices=("paper", "joint", "tikhonov"), default="joint", help="least-squares solver (default: %(default)s)")
+    p.add_argument("--model", choices=MODELS, default="auto", help="BRDF model (default: %(default)s)")
+    p.add_argument("--lmax", type=BANDS.arg(), default=8, help=f"lighting band limit{BANDS.text()} (default: %(default)s)")
+    p.add_argument("--pmax", type=BANDS.arg(), default=8,
+                   help=f"outgoing band limit of the full model{BANDS.text()} (default: %(default)s)")
+    p.add_argument("--solver", choices=SOLVERS, default="joint", help="least-squares solver (default: %(default)s)")
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--figure", default=None, help="also write a PNG: each scene's image, the fit's rendering and the residual")
-    p.add_argument("-o", "--output", required=True, help="output BRDF file (JSON)")
+    add_output_arguments(p, "BRDF.json", "output BRDF file (JSON)")
     p.set_defaults(func=run)
 
 
 def parse_circle(text: str, option: str = "--circle") -> tuple[float, float, float]:
-    """``'cx,cy,r'`` -> floats; ValueError naming ``option`` otherwise."""
-    try:
-        cx, cy, r = (float(v) for v in text.split(","))
-    except ValueError:
-        raise ValueError(f"{option} must be 'cx,cy,r' (three numbers), got {text!r}") from None
+    """``'cx,cy,r'`` -> floats; InputError naming ``option`` otherwise."""
+    from brdfrig.errors import InputError
+    from brdfrig.ranges import Range
+
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise InputError(f"{option} must be 'cx,cy,r' (three numbers), got {text!r}")
+    cx, cy, r = (Range(-1e5, 1e5).parse(v, f"each of {option} cx,cy,r") for v in parts)
     if not r > 0:
-        raise ValueError(f"{option} radius must be > 0, got {r}")
+        raise InputError(f"{option} radius must be > 0, got {r}")
     return cx, cy, r
 
 
 def _probe_environment(path, lmax: int, circle=None):
+    from brdfrig.errors import InputError
     from brdfrig.hdr.detect import detect_sphere
     from brdfrig.hdr.exr import read_image
     from brdfrig.lighting import environment_from_probe
 
     img = read_image(path)
-    circle = detect_sphere(img) if circle is None else circle
+    circle = detect_sphere(img, name=str(path)) if circle is None else circle
     # The ball spans 360 degrees over its diameter 2r: r/2 pixels per band-limit half-period budget.
     if lmax > circle[2] / 4:
-        raise ValueError(f"{path}: a mirror ball of radius {circle[2]:.0f} px supports bands up to {int(circle[2] / 4)}, --lmax is {lmax}")
+        raise InputError(f"{path}: a mirror ball of radius {circle[2]:.0f} px supports bands up to {int(circle[2] / 4)}, --lmax is {lmax}")
     return environment_from_probe(img, circle, name=str(path))
 
 
@@ -70,6 +79,7 @@ def _sample_scene(env, image_path, circle):
     """(Scene, circle used, image shape, (rows, cols) of the sphere pixels)."""
     import numpy as np
 
+    from brdfrig.errors import InputError
     from brdfrig.fit.scene import Scene
     from brdfrig.hdr.detect import detect_sphere
     from brdfrig.hdr.exr import read_image
@@ -78,8 +88,8 @@ def _sample_scene(env, image_path, circle):
 
     img = read_image(image_path)
     if img.shape[2] != env.channels:
-        raise ValueError(f"{image_path}: image has {img.shape[2]} channel(s) but its lighting has {env.channels}")
-    circle = detect_sphere(img) if circle is None else circle
+        raise InputError(f"{image_path}: image has {img.shape[2]} channel(s) but its lighting has {env.channels}")
+    circle = detect_sphere(img, name=str(image_path)) if circle is None else circle
     circle = check_circle_in_frame(img.shape, circle, what=f"{image_path}: sphere circle")
     px = sphere_pixels(img.shape, circle)
     radiance = np.asarray(img, np.float64)[px.rows, px.cols]
@@ -115,25 +125,23 @@ def write_figure(path, scenes, shapes, pixels, brdf) -> None:
     save_png(fig, path)
 
 
-def _channels(values) -> str:
-    """Per-channel values as ``(a, b, c)`` with 3 significant digits."""
-    return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
-
-
 def run(args) -> int:
     from pathlib import Path
 
+    from brdfrig.errors import InputError
     from brdfrig.fit.brdffile import save_brdf
     from brdfrig.fit.fitter import fit_brdf
+    from brdfrig.fit.report import format_report
     from brdfrig.lighting import read_latlong
 
     if not args.scene and not args.probe_scene:
-        raise ValueError("give at least one --scene ENV IMAGE or --probe-scene PROBE IMAGE")
-    if args.lmax < 0 or args.pmax < 0:
-        raise ValueError(f"--lmax and --pmax must be >= 0, got {args.lmax}, {args.pmax}")
-    out = Path(args.output)
-    if not out.parent.is_dir():
-        raise OSError(f"-o {out}: directory {out.parent} does not exist")
+        raise InputError("give at least one --scene ENV IMAGE or --probe-scene PROBE IMAGE")
+    sources = [p for pair in args.scene + args.probe_scene for p in pair]
+    out = check_output(args.output, sources, suffixes=(".json",), writes="a BRDF file (JSON)",
+                       no_clobber=args.no_clobber)
+    if args.figure:
+        check_output(args.figure, sources + [out], suffixes=(".png",), writes="a PNG figure",
+                     no_clobber=args.no_clobber, option="--figure")
     circle = None if args.circle is None else parse_circle(args.circle)
     probe_circle = None if args.probe_circle is None else parse_circle(args.probe_circle, "--probe-circle")
     scenes, inputs, shapes, pixels = [], [], [], []
@@ -151,29 +159,12 @@ def run(args) -> int:
 
     result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress)
     rep = result.report
-    print(rep["identifiability_summary"])
-    print(f"pixels: {rep['pixels']}")
-    for name, info in rep["candidates"].items():
-        if "skipped" in info:
-            print(f"  {name:10s} skipped: {info['skipped']}")
-            continue
-        held = info.get("heldout_relative_rms")
-        rank = info.get("rank")
-        cond = info.get("condition_number")
-        print(
-            f"  {name:10s} held-out rel. RMS {held if held is None else f'{held:.4f}'}"
-            + ("" if rank is None else f", rank {min(rank)}/{info['unknowns']}, cond {max(cond):.3g}")
-            + ("" if info.get("determined") else "  [not determined]")
-        )
-        if "fit_report" in info:  # microfacet: its parameters per channel
-            mf = info["fit_report"]
-            vals = " ".join(f"{k} {_channels(mf[k])}" for k in ("alpha", "f0", "f90", "diffuse_albedo", "diffuse_sigma"))
-            series = f"SH series bands {mf['series_bands']}" if mf["series_bands"] else "no SH series (check pixels: no gain)"
-            print(f"  {'':10s} {vals}; {series}")
-    print(f"model: {rep['chosen_model']} ({rep['reason']})")
-    for w in rep["warnings"]:
+    print(rep.identifiability_summary)
+    print("\n".join(format_report(rep)))
+    for w in rep.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]})
+    save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]},
+              overwrite=not args.no_clobber)
     print(f"wrote {out}")
     if args.figure:
         write_figure(args.figure, scenes, shapes, pixels, result.brdf)

@@ -63,7 +63,7 @@ def _batch_table(result) -> str:
 
 
 def run(args) -> int:
-    from brdfrig.errors import InputError
+    from brdfrig.errors import InputError, on_disk_full
     from brdfrig.session.pipeline import open_verified
     from brdfrig.session.refit import preset_for, record, refit_batch, refit_session
 
@@ -79,8 +79,9 @@ def run(args) -> int:
             print(f"{len(result.done)} session(s) refit, {len(result.failed)} failed, in {result.seconds:.1f} s")
             return 0 if not result.failed else 2
         open_verified(args.dir)  # refuses a session whose files fail their checksums, before anything else
-        refit = refit_session(args.dir, preset_for(args.dir, _overrides(args)), progress=not args.no_progress,
-                              echo=lambda t: print(t, flush=True))
+        with on_disk_full(f"free some space, then run `brdfrig refit {args.dir}` again"):
+            refit = refit_session(args.dir, preset_for(args.dir, _overrides(args)), progress=not args.no_progress,
+                                  echo=lambda t: print(t, flush=True))
         record(library, refit)
     print(f"results in {refit.results_dir}")
     return 0

@@ -9,6 +9,11 @@ from __future__ import annotations
 
 import argparse
 
+from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.ranges import Range
+
+SIZE = Range(1, 4096, integer=True)  # image side, pixels
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -19,34 +24,53 @@ def register(subparsers) -> None:
     )
     p.add_argument("brdf", help="BRDF file written by 'brdfrig fit'")
     p.add_argument("--lighting", required=True, help="lat-long environment map (EXR or .hdr)")
-    p.add_argument("--size", type=int, required=True, help="image size N in pixels (sphere radius N/2)")
-    p.add_argument("-o", "--output", required=True, help="output EXR")
+    p.add_argument("--size", type=SIZE.arg(), required=True,
+                   help=f"image size N in pixels, N{SIZE.text()} (sphere radius N/2)")
+    add_output_arguments(p, "OUT.exr", "output EXR (linear float32)")
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    from pathlib import Path
+def _radiance(pred, brdf_path):
+    """Predicted radiance as float32, negatives (SH ringing) clamped to 0 with a warning; InputError if not finite."""
+    import sys
 
     import numpy as np
 
+    from brdfrig.errors import InputError
+
+    pred = np.asarray(pred, np.float64)
+    bad = ~np.isfinite(pred) | (np.abs(pred) > np.finfo(np.float32).max)
+    if bad.any():
+        raise InputError(f"{brdf_path}: rendering gives {int(bad.sum())} non-finite value(s): the BRDF's "
+                         "coefficients are out of range (a damaged file?); nothing written")
+    neg = pred < 0
+    if neg.any():
+        peak = float(np.abs(pred).max())
+        print(f"brdfrig render: warning: {int(neg.sum())} pixel-channel(s) ({100 * neg.mean():.2g}%) rendered "
+              f"negative (down to {100 * float(pred.min()) / peak:.2g}% of the peak): clamped to 0", file=sys.stderr)
+    return np.maximum(pred, 0.0).astype(np.float32)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from brdfrig.errors import InputError
     from brdfrig.fit.brdffile import load_brdf
     from brdfrig.hdr.exr import write_exr
     from brdfrig.hdr.sphere import sphere_pixels
     from brdfrig.lighting import read_latlong
 
-    if args.size < 1:
-        raise ValueError(f"--size must be >= 1, got {args.size}")
-    out = Path(args.output)
-    if not out.parent.is_dir():
-        raise OSError(f"-o {out}: directory {out.parent} does not exist")
+    out = check_output(args.output, [args.brdf, args.lighting], suffixes=(".exr",), writes="a linear OpenEXR image",
+                       no_clobber=args.no_clobber)
     brdf, _ = load_brdf(args.brdf)
     env = read_latlong(args.lighting, getattr(brdf, "lmax", 0))
     if env.channels != brdf.channels and brdf.channels != 1:
-        raise ValueError(f"{args.lighting}: lighting has {env.channels} channel(s), the BRDF {brdf.channels}")
+        raise InputError(f"{args.lighting}: lighting has {env.channels} channel(s), the BRDF {brdf.channels}")
     n = args.size
     px = sphere_pixels((n, n), (n / 2, n / 2, n / 2), margin_px=0.0)
     image = np.zeros((n, n, env.channels), dtype=np.float32)
-    image[px.rows, px.cols] = brdf.predict(env, px.normals)
-    write_exr(out, image, attributes={"brdfrig_brdf": str(args.brdf), "brdfrig_lighting": str(args.lighting)})
+    image[px.rows, px.cols] = _radiance(brdf.predict(env, px.normals), args.brdf)
+    write_exr(out, image, attributes={"brdfrig_brdf": str(args.brdf), "brdfrig_lighting": str(args.lighting)},
+              overwrite=not args.no_clobber)
     print(f"wrote {out}")
     return 0

@@ -55,6 +55,7 @@ __all__ = [
     "FitPreset",
     "SessionConfig",
     "load_session_config",
+    "load_rig_config",
     "load_fit_preset",
     "session_config_from_dict",
     "FIT_MODELS",
@@ -484,6 +485,18 @@ def load_session_config(plan_path: str | Path, rig_path: str | Path | None = Non
     )
 
 
+def load_rig_config(path: str | Path) -> RigConfig:
+    """The ``[rig]`` of a rig file (e.g. ``config/rig-bench.toml``) or of a whole session file (validated in full)."""
+    doc = _read_toml(path)
+    if "plan" in doc:
+        return session_config_from_dict(doc, str(path)).rig
+    _check_keys(doc, {"rig": _table, "session": _table, "fit": _table}, "top level", str(path))
+    if "rig" not in doc:
+        raise ConfigError(f"{path} has no [rig] table: describe the turntable and camera there "
+                          "(see config/rig-bench.toml)")
+    return _parse_rig(doc["rig"], str(path))
+
+
 def load_fit_preset(path: str | Path) -> FitPreset:
     """Read a fit preset file (a ``[fit]`` table)."""
     doc = _read_toml(path)
@@ -505,8 +518,22 @@ def _to_lists(obj):
 
 
 def stored_session_config(d: dict, source: str) -> SessionConfig:
-    """Rebuild the :class:`SessionConfig` stored in a session directory by :meth:`SessionConfig.to_dict`."""
-    d = _to_lists(d)
+    """Rebuild the :class:`SessionConfig` stored in a session directory by :meth:`SessionConfig.to_dict`.
+
+    A damaged stored config (a table or key missing or of the wrong type) raises
+    :class:`ConfigError` naming ``source`` and the key, like any config file.
+    """
+    try:
+        doc = _stored_document(_to_lists(d))
+    except (KeyError, TypeError, AttributeError) as exc:
+        what = f"key {exc.args[0]!r} is missing" if isinstance(exc, KeyError) else f"a table is malformed ({exc})"
+        raise ConfigError(f"{source} is damaged: in its stored config, {what}; "
+                          "restore it from a backup (nothing was changed)") from None
+    return session_config_from_dict(doc, source)
+
+
+def _stored_document(d: dict) -> dict:
+    """The TOML-like document of a stored config (the inverse of :meth:`SessionConfig.to_dict`)."""
     plan = dict(d["plan"])
     plan["samples"] = [{k: v for k, v in s.items() if v is not None} for s in plan["samples"]]
     plan["probe"] = {k: v for k, v in plan["probe"].items() if v is not None}
@@ -515,10 +542,9 @@ def stored_session_config(d: dict, source: str) -> SessionConfig:
     else:
         plan.pop("probe_rotations", None)
     plan = {k: v for k, v in plan.items() if v is not None}
-    doc = {
+    return {
         "session": {"name": d["name"], "notes": d["notes"]},
         "rig": d["rig"],
         "plan": plan,
         "fit": d["fit"],
     }
-    return session_config_from_dict(doc, source)

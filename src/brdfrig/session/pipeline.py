@@ -34,7 +34,7 @@ import numpy as np
 from brdfrig.errors import ConfigError, StoreError
 from brdfrig.session.config import FitPreset, SessionConfig, stored_session_config
 from brdfrig._atomic import write_bytes as atomic_write_bytes
-from brdfrig.session.store import SessionStore
+from brdfrig.session.store import SessionStore, check_shot_entry
 from brdfrig.fit.brdffile import jsonable
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.report import FitReport, summary_line
@@ -112,6 +112,7 @@ def _exposure_files(store: SessionStore) -> dict[tuple[int, float], list[tuple[s
     groups: dict[tuple[int, float], list[tuple[str, dict]]] = {}
     for rel, e in sorted(store.files.items()):
         if e.get("kind") == "exposure":
+            check_shot_entry(rel, e, store.root / "manifest.json", required=("key", "scene", "angle_deg"))
             groups.setdefault((e["scene"], e["angle_deg"]), []).append((rel, e))
     return groups
 

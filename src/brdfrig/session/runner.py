@@ -12,6 +12,11 @@ Scenes come from the table (``carries = "rig"``: each angle is a new lighting)
 or from the operator (``carries = "samples"``: the run pauses before each scene
 and prompts; answering ``q`` stops it, to be resumed later).  Ctrl-C stops the
 table, records an ``interrupted`` stop in the journal and re-raises.
+
+A run or resume holds the session's writer lock (``SessionStore.locked``) from
+before its first write to its last; after every table move it waits the plan's
+``settle_s``; every retry, resynchronisation and re-approach of the turntable
+driver is a journal record (``turntable_*`` events).
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import difflib
 import errno
 import hashlib
 import sys
+import time
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -34,13 +40,14 @@ __all__ = ["run_session", "resume_session", "open_rig", "completed_shots", "fram
 
 RAW_SUBDIR = "raw"
 @contextlib.contextmanager
-def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
+def open_rig(config: SessionConfig, journal: Callable[..., object] | None = None) -> Iterator[tuple[object, object]]:
     """Connect the configured turntable and camera; yield ``(turntable, camera)``, disconnect on exit.
 
-    ``sim`` backends run D's GRBL firmware simulator on a pseudo-terminal, driven
+    ``sim`` backends run the GRBL firmware simulator on a pseudo-terminal, driven
     by the real :class:`brdfrig.rig.turntable.GrblTurntable`, and the simulated camera
-    reading the simulator's physical table angle.  The turntable is stopped on
-    the way out, whatever happened.
+    reading the simulator's physical table angle.  ``journal(event, **fields)``
+    receives the driver's retries (e.g. ``SessionStore.append``).  The turntable
+    is stopped on the way out, whatever happened.
     """
     from brdfrig.rig.turntable import GrblTurntable
 
@@ -58,7 +65,7 @@ def open_rig(config: SessionConfig) -> Iterator[tuple[object, object]]:
         if tt_cfg.backend != "none":
             turntable = stack.enter_context(
                 GrblTurntable(port, tt_cfg.baud, tt_cfg.steps_per_degree, tt_cfg.backlash_deg,
-                              homing_timeout_s=tt_cfg.timeout_s)
+                              homing_timeout_s=tt_cfg.timeout_s, journal=journal)
             )
             turntable.home()
         if cam_cfg.backend == "sim":
@@ -99,7 +106,31 @@ def make_sim_bench(options: dict, carries: str, source: str):
             hint = difflib.get_close_matches(key, allowed, n=1)
             raise ConfigError(f"unknown key {key!r} in [rig.sim] of {source}"
                               + (f"; did you mean {hint[0]!r}?" if hint else f"; allowed keys: {', '.join(allowed)}"))
-    return SimBench(carries=carries, **opts)
+    try:
+        return SimBench(carries=carries, **opts)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"[rig.sim] of {source}: {exc}") from None
+
+
+def preflight(config: SessionConfig) -> None:
+    """Checks that need no device, made before anything is shot (and by ``--dry-run``).
+
+    With the simulated camera: the ``[rig.sim]`` options build a bench, and every
+    circle of the plan lies inside its frame.  Raises :class:`ConfigError`.
+    """
+    if config.rig.camera.backend != "sim":
+        return
+    from brdfrig.hdr.probe import check_circle_in_frame
+
+    bench = sim_bench(config)
+    circles = [("[plan.probe]", config.plan.probe.circle)] + [
+        (f"[[plan.samples]] {s.name!r}", s.circle) for s in config.plan.samples]
+    for where, circle in circles:
+        if circle is not None:
+            try:
+                check_circle_in_frame(bench.frame_shape, circle, f"key 'circle' in {where} of {config.source}")
+            except ValueError as exc:
+                raise ConfigError(f"{exc} of the simulated camera: fix the circle before shooting") from None
 
 
 def _sim_table_options(config: SessionConfig) -> dict:
@@ -155,10 +186,10 @@ class _Runner:
     """One pass over the plan (fresh or resumed): see :func:`run_session`."""
 
     def __init__(self, store: SessionStore, plan: Plan, turntable, camera, *, prompt: Callable[[str], str] | None,
-                 progress: bool):
+                 progress: bool, sleep: Callable[[float], None] = time.sleep):
         self.store, self.plan, self.cfg = store, plan, plan.config
         self.turntable, self.camera = turntable, camera
-        self.prompt, self.progress = prompt, progress
+        self.prompt, self.progress, self.sleep = prompt, progress, sleep
         self.done = completed_shots(store)
         self.angle: float | None = None
 
@@ -168,7 +199,10 @@ class _Runner:
             return
         self.turntable.move_to(angle)
         self.angle = angle
-        self.store.append("moved", angle_deg=angle)
+        settle = self.cfg.plan.settle_s
+        if settle > 0:
+            self.sleep(settle)  # vibration of the bench dies down before the shutter opens
+        self.store.append("moved", angle_deg=angle, settle_s=settle)
 
     def _shoot(self, key: str, time_s: float, kind: str, scene: int, angle: float) -> str:
         cam = self.cfg.rig.camera
@@ -272,12 +306,15 @@ class _Runner:
         return missing
 
 
-def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory) -> str:
-    """Run the plan with the rig open; always journal a final ``stop`` record with the exit status."""
+def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory, sleep) -> str:
+    """Run the plan with the rig open; always journal a final ``stop`` record with the exit status.
+
+    ``rig_factory(config, journal=store.append)`` opens the rig (see :func:`open_rig`).
+    """
     status, reason = "error", ""
     try:
-        with rig_factory(plan.config) as (turntable, camera):
-            runner = _Runner(store, plan, turntable, camera, prompt=prompt, progress=progress)
+        with rig_factory(plan.config, journal=store.append) as (turntable, camera):
+            runner = _Runner(store, plan, turntable, camera, prompt=prompt, progress=progress, sleep=sleep)
             try:
                 status = runner.run()
             except BaseException:
@@ -309,29 +346,43 @@ def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory) 
 
 
 def run_session(config: SessionConfig, out_dir: str | Path, *, prompt: Callable[[str], str] | None = input,
-                progress: bool = True, rig_factory=open_rig, echo: Callable[[str], None] | None = None) -> tuple[str, SessionStore]:
-    """Create the session directory ``out_dir`` and run the whole plan.
+                progress: bool = True, rig_factory=open_rig, echo: Callable[[str], None] | None = None,
+                sleep: Callable[[float], None] = time.sleep) -> tuple[str, SessionStore]:
+    """Create the session directory ``out_dir`` and run the whole plan under the session's writer lock.
 
     Returns ``(status, store)`` with status ``"complete"`` or ``"paused"`` (operator
     stopped at a scene prompt).  Raises ``StoreError`` if ``out_dir`` exists and is
-    not an empty directory, ``DiskFullError`` on a full disk, and re-raises
-    ``KeyboardInterrupt`` after stopping the table.
+    not an empty directory or is in use, ``DiskFullError`` on a full disk, and
+    re-raises ``KeyboardInterrupt`` after stopping the table.  ``sleep`` waits the
+    plan's ``settle_s`` after each move.
     """
+    preflight(config)
     plan = build_plan(config)
     if echo:
         echo(_describe(plan))
     store = SessionStore.create(out_dir, config.to_dict())
-    store.append("run_start", resumed=False)
-    return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory), store
+    with store.locked():
+        store.append("run_start", resumed=False)
+        return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory, sleep=sleep), store
 
 
 def resume_session(session_dir: str | Path, *, prompt: Callable[[str], str] | None = input, progress: bool = True,
-                   rig_factory=open_rig, echo: Callable[[str], None] | None = None) -> tuple[str, SessionStore]:
+                   rig_factory=open_rig, echo: Callable[[str], None] | None = None,
+                   sleep: Callable[[float], None] = time.sleep) -> tuple[str, SessionStore]:
     """Finish a stopped or killed session: verify what is stored, set aside what fails, shoot the rest.
 
+    Holds the session's writer lock from before its first write (a session in
+    use by another process raises ``StoreError`` and nothing is changed).
     Returns ``(status, store)`` as :func:`run_session`.
     """
     store = SessionStore.open(session_dir)
+    with store.locked():
+        return _resume(store, prompt=prompt, progress=progress, rig_factory=rig_factory, echo=echo, sleep=sleep)
+
+
+def _resume(store: SessionStore, *, prompt, progress, rig_factory, echo, sleep) -> tuple[str, SessionStore]:
+    """:func:`resume_session` once the lock is held."""
+    session_dir = store.root
     config = stored_session_config(store.config, f"{Path(session_dir) / 'session.json'}")
     check = store.verify(prefix=RAW_SUBDIR + "/")
     leftovers = store.clean_incoming()
@@ -348,7 +399,7 @@ def resume_session(session_dir: str | Path, *, prompt: Callable[[str], str] | No
         )
     store.append("run_start", resumed=True, verified=len(check.ok), rejected=check.corrupt + check.missing,
                  untracked=check.untracked, incoming_removed=leftovers)
-    return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory), store
+    return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory, sleep=sleep), store
 
 
 def _describe(plan: Plan) -> str:

@@ -34,10 +34,12 @@ import errno
 import fcntl
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
 import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -68,6 +70,7 @@ INCOMING_DIR = ".incoming"
 CACHE_DIR = "cache"
 RESULTS_DIR = "results"
 LOCK_FILE = ".lock"
+_HELD_LOCKS: dict[tuple[str, int], int] = {}  # (session dir, thread) -> depth of locked() held
 
 
 def _pid_alive(staging: Path) -> bool:
@@ -199,7 +202,9 @@ class SessionStore:
                 f"session {root} was written with session format version {version}; this brdfrig reads "
                 f"versions <= {FORMAT_VERSION}: upgrade brdfrig to open it (nothing was changed)"
             )
+        _check_session_info(info, root / SESSION_FILE)
         manifest = _load_json(root / MANIFEST_FILE, f"session {root} has no readable {MANIFEST_FILE}")
+        _check_manifest(manifest, root / MANIFEST_FILE)
         for sub in (RAW_DIR, INCOMING_DIR, CACHE_DIR, RESULTS_DIR):
             (root / sub).mkdir(exist_ok=True)
         return cls(root, info, manifest)
@@ -210,13 +215,23 @@ class SessionStore:
         """Hold the session's writer lock (``DIR/.lock``, an exclusive ``flock``) for the ``with`` block.
 
         Every writer (capture run, resume, refit) holds it; the kernel releases it when the
-        process dies, so a killed writer never leaves the session locked.
+        process dies, so a killed writer never leaves the session locked.  The lock is
+        non-blocking and re-entrant within one thread (a capture that fits what it shot
+        holds it once for both); another process, or another thread, is refused.
 
         Raises
         ------
         StoreError
             If another process holds it: "session DIR in use by PID N".
         """
+        key = (os.path.realpath(self.root), threading.get_ident())
+        if key in _HELD_LOCKS:
+            _HELD_LOCKS[key] += 1
+            try:
+                yield self
+            finally:
+                _HELD_LOCKS[key] -= 1
+            return
         fd = os.open(self.root / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             try:
@@ -227,7 +242,11 @@ class SessionStore:
                                  "(nothing was changed)") from None
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-            yield self
+            _HELD_LOCKS[key] = 1
+            try:
+                yield self
+            finally:
+                del _HELD_LOCKS[key]
         finally:
             os.close(fd)  # releases the lock
 
@@ -430,3 +449,57 @@ def _load_json(path: Path, message: str) -> dict:
     if not isinstance(data, dict):
         raise StoreError(message)
     return data
+
+
+def _damaged(path: Path, what: str) -> StoreError:
+    return StoreError(f"{path} is damaged: {what}; restore it from a backup (nothing was changed)")
+
+
+def _check_session_info(info: dict, path: Path) -> None:
+    """StoreError naming ``path`` and the key unless ``info`` has the fields of a session file."""
+    for key, kind in (("created", str), ("config", dict)):
+        if not isinstance(info.get(key), kind):
+            raise _damaged(path, f"key {key!r} is missing or not a {kind.__name__} (got {info.get(key)!r:.60})")
+
+
+_SHOT_FIELDS = {"key": str, "scene": int, "angle_deg": (int, float), "time_s": (int, float)}  # "key" required
+
+
+def check_shot_entry(rel: str, entry: dict, path: Path, required: tuple[str, ...] = ("key",)) -> None:
+    """StoreError naming ``path`` and ``rel`` unless a shot's manifest entry has well-formed shot fields.
+
+    Fields in ``required`` must be present; the others of ``key, scene,
+    angle_deg, time_s`` must be well-formed when present.
+    """
+    for key, kind in _SHOT_FIELDS.items():
+        if key not in entry and key not in required:
+            continue
+        value = entry.get(key)
+        if isinstance(value, bool) or not isinstance(value, kind) or (
+                isinstance(value, float) and not math.isfinite(value)):
+            raise _damaged(path, f"entry {rel!r}: key {key!r} is missing or malformed (got {value!r:.60})")
+    if entry.get("scene", 0) < 0 or not entry.get("time_s", 1) > 0:
+        raise _damaged(path, f"entry {rel!r}: scene {entry.get('scene')} / time_s {entry.get('time_s')} out of range")
+
+
+def _check_manifest(manifest: dict, path: Path) -> None:
+    """StoreError naming ``path`` and the entry/key unless every manifest entry has the fields its readers use."""
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        raise _damaged(path, f"key 'files' is missing or not a table (got {files!r:.60})")
+    if not isinstance(manifest.get("rejected", []), list):
+        raise _damaged(path, "key 'rejected' is not a list")
+    for rel, entry in files.items():
+        where = f"entry {rel!r}"
+        if Path(rel).is_absolute() or ".." in Path(rel).parts:
+            raise _damaged(path, f"{where} is not a path inside the session")
+        if not isinstance(entry, dict):
+            raise _damaged(path, f"{where} is not a table")
+        sha = entry.get("sha256")
+        if not (isinstance(sha, str) and re.fullmatch(r"[0-9a-f]{64}", sha)):
+            raise _damaged(path, f"{where}: key 'sha256' is missing or not a sha256 hex digest")
+        size = entry.get("size")
+        if isinstance(size, bool) or not isinstance(size, int) or size < 0:
+            raise _damaged(path, f"{where}: key 'size' is missing or not a byte count")
+        if entry.get("kind") in ("exposure", "meter"):
+            check_shot_entry(rel, entry, path)
