@@ -41,3 +41,57 @@ def test_impossible_values_name_the_setting(capsys):
     assert "steps_per_degree must be a positive" in capsys.readouterr().out
     assert main(["rig", "check", "--simulate", "--exposure", "0"]) == 2
     assert "--exposure must be a positive" in capsys.readouterr().err
+
+
+RIG_BENCH = Path(__file__).resolve().parents[1] / "src" / "brdfrig" / "config" / "rig-bench.toml"
+
+RIG_ONLY_SIM = """
+[rig]
+carries = "rig"
+[rig.turntable]
+backend = "sim"
+[rig.camera]
+backend = "sim"
+[rig.sim]
+scale = 0.25
+env_height = 8
+"""
+
+
+def test_rig_check_accepts_the_projects_rig_only_file(capsys):
+    """config/rig-bench.toml tells the user to run `rig check` on it: it has a [rig] and no [plan]."""
+    assert "[plan]" not in RIG_BENCH.read_text() and "rig check" in RIG_BENCH.read_text()
+    rc = main(["rig", "check", "--config", str(RIG_BENCH)])
+    out, err = capsys.readouterr()
+    assert "[plan]" not in out + err
+    # this machine has no GRBL board on the file's /dev/serial/by-id port: the check runs and names the setting
+    assert rc == 1 and "turntable" in out and "FAILED" in out and "'port'" in out
+
+
+def test_rig_check_of_a_rig_only_sim_file_passes(capsys, tmp_path):
+    cfg = tmp_path / "rig.toml"
+    cfg.write_text(RIG_ONLY_SIM)
+    assert main(["rig", "check", "--config", str(cfg), "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "confirmed at 10.0000 deg, table at 10.0000 deg" in out and "all devices work" in out
+    assert len(list(tmp_path.glob("*.dng"))) == 1
+
+
+def test_rig_check_with_nothing_configured_says_so_and_fails(capsys):
+    assert main(["rig", "check"]) == 2
+    out, err = capsys.readouterr()
+    assert "all devices work" not in out + err
+    assert err.strip().splitlines() == [
+        "brdfrig rig: error: nothing was checked: no turntable and no camera configured "
+        "(give --config FILE, --port and/or --camera, or --simulate)"
+    ]
+
+
+def test_rig_check_refuses_a_missing_out_folder_before_moving_anything(capsys, tmp_path):
+    missing = tmp_path / "newdir"
+    assert main(["rig", "check", "--simulate", "--out", str(missing)]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""  # no device line: nothing was connected, homed or moved
+    assert err.strip() == (f"brdfrig rig: error: --out {str(missing)!r} is not a writable folder: create it or "
+                           "choose another (nothing was moved)")
+    assert not missing.exists()

@@ -53,7 +53,7 @@ class FakeCamera:
         pass
 
 
-def config(carries="rig", scenes=3, rotations=(0, 90)):
+def config(carries="rig", scenes=3, rotations=(0, 90), settle_s=None):
     doc = {
         "session": {"name": "fake"},
         "rig": {"carries": carries, "turntable": {"backend": "sim"}, "camera": {"backend": "sim"}},
@@ -63,12 +63,14 @@ def config(carries="rig", scenes=3, rotations=(0, 90)):
     }
     if carries == "samples":
         doc["plan"]["probe_rotations"] = list(rotations)
+    if settle_s is not None:
+        doc["plan"]["settle_s"] = settle_s
     return session_config_from_dict(doc, "test")
 
 
 def rig(fail_at=None, exc=None, devices=None):
     @contextlib.contextmanager
-    def factory(cfg):
+    def factory(cfg, journal=None):
         tt = FakeTurntable()
         cam = FakeCamera(tt, fail_at, exc)
         if devices is not None:
@@ -159,3 +161,46 @@ def test_operator_scenes_pause_and_resume(tmp_path):
                                    rig_factory=rig())
     assert status == "complete" and len(shots_in(store)) == 2 * 3 * 3
     assert len(prompts) == 1 and "scene 2/2" in prompts[0]
+
+
+def test_runner_waits_settle_s_after_every_move(tmp_path):
+    """settle_s is counted in the estimate; the runner must also wait it, once per table move."""
+    dev, waits = [], []
+    status, store = run_session(config(settle_s=2.5), tmp_path / "s", prompt=None, progress=False,
+                                rig_factory=rig(devices=dev), sleep=waits.append)
+    assert status == "complete"
+    assert dev[0][0].moves == [0.0, 120.0, 240.0]
+    assert waits == [2.5, 2.5, 2.5]  # one settle per move, none per shot
+    assert [r["settle_s"] for r in store.journal() if r["event"] == "moved"] == [2.5, 2.5, 2.5]
+    waits.clear()
+    run_session(config(), tmp_path / "t", prompt=None, progress=False, rig_factory=rig(), sleep=waits.append)
+    assert waits == []  # settle_s = 0 (the default) asks for no wait
+
+
+def test_turntable_retries_are_journalled_in_the_session(tmp_path):
+    """A resent final approach (line noise, lost ``ok``) shows in the session journal, and the shot is right."""
+    from brdfrig.rig.turntable import GrblTurntable
+    from brdfrig.sim.grbl import GrblSimulator
+    from brdfrig.sim.soak import SOAK_DRIVER_TIMING
+
+    seen = {}
+
+    @contextlib.contextmanager
+    def factory(cfg, journal=None):
+        with GrblSimulator(steps_per_degree=80.0, backlash_deg=0.5, max_rate_deg_s=1e5, homing_time_s=0.002,
+                           tick_s=0.001) as sim:
+            with GrblTurntable(sim.port, 115200, 80.0, 0.5, journal=journal, **SOAK_DRIVER_TIMING) as table:
+                table.home()
+                table.move_to(300.0)  # the first scene angle, 0, is then approached from below
+                sim.rewrite_command("G90 G0 X0.000000", "G90 G0 X900.000000", drop_ok=True)
+                tt = FakeTurntable()
+                tt.move_to = lambda a: (tt.moves.append(a), table.move_to(a), seen.setdefault(a, sim.table_angle_deg))[1]
+                yield tt, FakeCamera(tt)
+
+    status, store = run_session(config(scenes=2), tmp_path / "s", prompt=None, progress=False, rig_factory=factory)
+    assert status == "complete"
+    assert seen == {0.0: 0.0, 180.0: 180.0}  # the physical table angle when each scene was shot
+    events = [r["event"] for r in store.journal()]
+    resync = [r for r in store.journal() if r["event"] == "turntable_resync"]
+    assert resync and resync[0]["command"] == "G90 G0 X0.000000" and resync[0]["reason"] == "no reply"
+    assert "turntable_reapproach" in events[events.index("turntable_resync"):]

@@ -119,3 +119,46 @@ def test_ctrl_c_stops_cleanly_and_resume_finishes(tmp_path):
 
     store = SessionStore.open(out)
     assert store.verify().passed and sum(e.get("kind") == "exposure" for e in store.files.values()) == 8
+
+
+def _snapshot(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_a_session_in_use_is_refused_by_every_other_writer(tmp_path):
+    """Two real processes: a run waiting at its operator prompt holds the lock; resume and refit are refused."""
+    import os
+    import select
+    import time
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN.replace("ROT", "[0]"))
+    out = tmp_path / "s"
+    script = Path(sys.executable).parent / "brdfrig"
+    holder = subprocess.Popen([str(script), "capture", "run", str(plan), "--out", str(out), "--no-fit",
+                               "--no-progress"], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE)
+    try:
+        seen, deadline = b"", time.monotonic() + 90
+        while b"press Enter" not in seen:  # the run is at its first operator prompt, the lock held
+            ready, _, _ = select.select([holder.stdout], [], [], max(0.0, deadline - time.monotonic()))
+            assert ready and holder.poll() is None, (seen, holder.stderr.read() if holder.poll() is not None else "")
+            seen += os.read(holder.stdout.fileno(), 4096)
+        before = _snapshot(out)
+        expected = f"session {out} in use by PID {holder.pid}: wait for it to finish (nothing was changed)"
+        for command in (("capture", "resume", out, "--yes", "--no-fit", "--no-progress"),
+                        ("refit", out, "--no-progress")):
+            r = brdfrig(*command)
+            assert r.returncode == 2, (command, r.stderr)
+            assert r.stderr.strip().splitlines() == [f"brdfrig {command[0]}: error: {expected}"], command
+            assert _snapshot(out) == before, command  # nothing written
+        holder.stdin.write(b"q\n")
+        holder.stdin.close()
+        assert holder.wait(timeout=60) == 0
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+            holder.wait()
+    assert b"session paused" in seen + holder.stdout.read()
+    r = brdfrig("capture", "resume", out, "--yes", "--no-fit", "--no-progress")  # the lock died with its holder
+    assert r.returncode == 0 and "session complete" in r.stdout, r.stderr

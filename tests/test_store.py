@@ -140,3 +140,28 @@ def test_a_dead_runs_staging_directory_is_removed_by_the_next_commit(tmp_path):
     other = s.staging_results_dir()
     assert s.commit_results(live).name == "fit-001"
     assert not dead.exists() and other.exists()
+
+
+def test_writer_lock_is_reentrant_in_one_thread_and_refused_to_another(tmp_path):
+    import threading
+
+    store = SessionStore.create(tmp_path / "s", {"k": 1})
+    errors = []
+    with store.locked():
+        with SessionStore.open(tmp_path / "s").locked():  # a capture that fits what it shot locks twice
+            pass
+        t = threading.Thread(target=lambda: _try_lock(tmp_path / "s", errors))
+        t.start()
+        t.join()
+    assert len(errors) == 1 and str(errors[0]) == (
+        f"session {tmp_path / 's'} in use by PID {os.getpid()}: wait for it to finish (nothing was changed)")
+    _try_lock(tmp_path / "s", errors)  # released on exit
+    assert len(errors) == 1
+
+
+def _try_lock(root, errors):
+    try:
+        with SessionStore.open(root).locked():
+            pass
+    except StoreError as exc:
+        errors.append(exc)

@@ -4,14 +4,17 @@ The turntable check connects (GRBL 1.1 greeting, ``$$`` settings), homes,
 rotates to +10 degrees and back with read-back verification, and stops.  The
 camera check sets an exposure, takes one picture into ``--out`` (default: a
 temporary folder) and reads the exposure back from the file's metadata.
-Devices come from the ``[rig]`` table of a session file (``--config``), or
-from flags; ``--simulate`` runs the GRBL simulator on a pseudo-terminal and
-the simulated camera, through the same drivers.
+Devices come from the ``[rig]`` table of a rig file or a session file
+(``--config``), or from flags; ``--simulate`` runs the GRBL simulator on a
+pseudo-terminal and the simulated camera, through the same drivers.  With no
+device configured, or an ``--out`` that is not a writable folder, it stops
+before touching anything (exit 2).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import tempfile
 import time
@@ -48,7 +51,7 @@ def register(subparsers) -> None:
                               description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="rig_command", required=True, metavar="ACTION")
     c = sub.add_parser("check", help="find and exercise the configured devices; report what works")
-    c.add_argument("--config", help="session TOML file whose [rig] table describes the devices")
+    c.add_argument("--config", help="rig or session TOML file whose [rig] table describes the devices")
     c.add_argument("--simulate", action="store_true", help="use the GRBL simulator and the simulated camera")
     c.add_argument("--port", help="turntable serial port (e.g. /dev/ttyUSB0); omit for no turntable")
     c.add_argument("--baud", type=int, default=115200, help="turntable baud rate (default 115200)")
@@ -65,9 +68,9 @@ def register(subparsers) -> None:
 def _settings(args) -> tuple[_TableSettings, _CameraSettings, dict, str]:
     """Device settings from --config, or from the flags."""
     if args.config:
-        from brdfrig.session.config import load_session_config
+        from brdfrig.session.config import load_rig_config
 
-        rig = load_session_config(args.config).rig
+        rig = load_rig_config(args.config)
         tt, cam = rig.turntable, rig.camera
         table = _TableSettings(tt.backend, tt.port, tt.baud, tt.steps_per_degree, tt.backlash_deg, tt.timeout_s)
         camera = _CameraSettings(cam.backend, cam.iso, cam.f_number, args.exposure, cam.watch_dir, cam.timeout_s)
@@ -163,18 +166,27 @@ def run(args) -> int:
     if args.exposure <= 0:
         raise InputError(f"--exposure must be a positive time in seconds, got {args.exposure}")
     table_s, camera_s, sim_opts, carries = _settings(args)
-    failures = []
+    if table_s.backend == "none" and camera_s.backend == "none":
+        raise InputError("nothing was checked: no turntable and no camera configured (give --config FILE, "
+                         "--port and/or --camera, or --simulate)")
+    if args.out and not (Path(args.out).is_dir() and os.access(args.out, os.W_OK | os.X_OK)):
+        raise InputError(f"--out {args.out!r} is not a writable folder: create it or choose another "
+                         "(nothing was moved)")
+    failures, skipped = [], []
 
     def report(device: str, status: str, detail: str) -> None:
         if status == "FAILED":
             failures.append(device)
+        elif status == "skipped":
+            skipped.append(device)
         print(f"{device:<22} {status:<8} {detail}", flush=True)
 
     with contextlib.ExitStack() as stack:
         sim = _check_turntable(table_s, stack, report)
         out = Path(args.out) if args.out else Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        if not out.is_dir():
-            raise OSError(f"--out {str(out)!r} is not an existing folder")
         _check_camera(camera_s, sim, sim_opts, carries, out, report)
-    print("all devices work" if not failures else f"{len(failures)} check(s) failed: {', '.join(failures)}")
+    if failures:
+        print(f"{len(failures)} check(s) failed: {', '.join(failures)}")
+    else:
+        print("all devices work" + (f" (not checked: {', '.join(skipped)})" if skipped else ""))
     return 1 if failures else 0

@@ -15,7 +15,7 @@ import time
 
 import serial
 
-from brdfrig.rig.errors import DeviceDisconnected, DeviceNotFound, DeviceTimeout
+from brdfrig.rig.errors import DeviceBusy, DeviceDisconnected, DeviceNotFound, DeviceTimeout
 
 __all__ = ["SerialLink"]
 
@@ -35,6 +35,8 @@ class SerialLink:
     Notes
     -----
     Every read takes an absolute ``deadline`` (``time.monotonic()`` seconds).
+    The port is opened exclusively (``flock``): while one link holds it,
+    another process (or link) gets :class:`DeviceBusy`.
     Errors: :class:`DeviceNotFound` (port absent or not a serial device),
     :class:`DeviceDisconnected` (the port went away while open),
     :class:`DeviceTimeout` (no complete line before the deadline).
@@ -58,15 +60,19 @@ class SerialLink:
         return self._serial is not None
 
     def open(self) -> None:
-        """Open the port (8N1, no flow control); a missing or unusable port raises :class:`DeviceNotFound`."""
+        """Open the port exclusively (8N1, no flow control).
+
+        A missing or unusable port raises :class:`DeviceNotFound`; a port held
+        by another process raises :class:`DeviceBusy`.
+        """
         with self.lock:
             self.close()
             try:
-                self._serial = serial.Serial(self.port, self.baud, timeout=0, write_timeout=1.0)
+                self._serial = serial.Serial(self.port, self.baud, timeout=0, write_timeout=1.0, exclusive=True)
             except serial.SerialException as exc:
                 err = getattr(exc, "errno", None)
-                if err == errno.EBUSY:
-                    raise DeviceNotFound(f"port {self.port!r} is in use by another process") from exc
+                if err in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK):
+                    raise DeviceBusy(f"port {self.port!r} is in use by another process (setting 'port')") from exc
                 raise DeviceNotFound(f"cannot open serial port {self.port!r} (setting 'port'): {exc}") from exc
             except (OSError, ValueError) as exc:
                 raise DeviceNotFound(f"cannot open serial port {self.port!r} (setting 'port'): {exc}") from exc

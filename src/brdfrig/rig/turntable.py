@@ -38,6 +38,7 @@ so the gear play is taken up on the + side right after homing.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -108,7 +109,10 @@ class GrblTurntable:
     move_margin_s : float
         Added to twice the move's nominal duration (distance / ``$110``) to give its deadline.
     stall_timeout_s : float
-        A move whose reported position does not change for this long has stalled.
+        A move whose reported position does not change for this long has stalled.  Counted in
+        polls when ``poll_interval_s`` > 0 (``ceil(stall_timeout_s / poll_interval_s)`` reports
+        in a row, each at least ``poll_interval_s`` after the last, hence at least this long),
+        so that the exchange does not depend on how loaded the computer is.
     poll_interval_s : float
         Pause between status reports while waiting for a move.
     retries : int
@@ -306,20 +310,20 @@ class GrblTurntable:
                         reached, start, _ = self._move_verified(start, below)
                         if not reached:  # idle somewhere else (a corrupted command), play side unknown
                             loaded = False
-                            self._note("turntable_reapproach", target_deg=target, attempt=attempt + 1,
-                                       reason=f"idle at {start:.4f} deg instead of {below:.4f} deg")
+                            why = f"idle at {start:.4f} deg instead of {below:.4f} deg"
+                            self._note("turntable_reapproach", target_deg=target, attempt=attempt + 1, reason=why)
                             continue
                     reached, start, clean = self._move_verified(start, target)
                     if reached and (clean or self.backlash_deg == 0):
                         break
                     loaded = False  # arrived from either side: approach again from below
-                    self._note("turntable_reapproach", target_deg=target, attempt=attempt + 1,
-                               reason="the final move was resent or resynchronised: approach side unknown"
-                               if reached else f"idle at {start:.4f} deg instead of {target:.4f} deg")
+                    why = ("the final move was resent or resynchronised: approach side unknown" if reached
+                           else f"idle at {start:.4f} deg instead of {target:.4f} deg")
+                    self._note("turntable_reapproach", target_deg=target, attempt=attempt + 1, reason=why)
                 else:
                     raise DeviceRefused(
-                        f"controller stays idle at {start:.4f} deg instead of {target:.4f} deg "
-                        f"after {self.retries} re-sends"
+                        f"no clean approach to {target:.4f} deg in {self.retries + 1} attempts (last: {why}): "
+                        "check the serial line"
                     )
             except BaseException:
                 self._halt_quietly()
@@ -396,6 +400,61 @@ class GrblTurntable:
         self.rate_deg_s = rate_deg_min / 60.0
         self._homed = False
 
+    def _homing_cycle(self) -> str | None:
+        """Send ``$H`` once and watch it: return None when a homing cycle demonstrably ran, else why not.
+
+        A status report is requested every ``poll_interval_s`` while waiting (GRBL
+        answers one queued during the cycle with state ``Home`` just before the
+        ``ok``).  The cycle counts only if a ``Home`` report was seen and the
+        cycle then ended: its ``ok``, or a report ``Idle`` after the ``Home``
+        one (the ``ok`` was lost).  Raises ``DeviceRefused`` on a homing alarm
+        or a refusal, ``DeviceTimeout`` when a seen cycle outlasts ``homing_timeout_s``.
+        """
+        self.link.write_line("$H")
+        now = time.monotonic()
+        deadline, next_poll, asked = now + self.homing_timeout_s, now, None
+        saw_home = unlocked = ended = False
+        why = None
+        while not ended and why is None:
+            now = time.monotonic()
+            if now > deadline:
+                if saw_home:
+                    raise DeviceTimeout(f"homing did not finish within {self.homing_timeout_s:g} s (setting 'timeout_s')")
+                why = f"no reply to $H within {self.homing_timeout_s:g} s"
+                break
+            if asked is not None and now > asked + self.reply_timeout_s:
+                asked = None  # that report was lost: ask again
+                self._note("turntable_status_retry", reason="no status report during homing")
+            if asked is None and now >= next_poll:  # one status request outstanding at a time
+                self.link.write(gp.STATUS_QUERY)
+                asked, next_poll = now, now + self.poll_interval_s
+            wake = asked + self.reply_timeout_s if asked is not None else next_poll
+            try:
+                reply = gp.parse_reply(self.link.readline(min(wake, deadline)))
+            except DeviceTimeout:
+                continue
+            if reply.kind == "status":
+                asked = None
+                saw_home = saw_home or reply.status.state == "Home"
+                ended = saw_home and reply.status.state == "Idle"
+            elif reply.kind == "ok":
+                ended = True
+            elif reply.kind == "error" and reply.code in _RETRYABLE_ERRORS:
+                why = f"$H answered error:{reply.code} ({gp.describe_error(reply.code)})"
+            elif reply.kind == "error":
+                raise DeviceRefused(f"controller refused $H: error:{reply.code} ({gp.describe_error(reply.code)})")
+            elif reply.kind == "alarm":
+                self._forget()
+                raise DeviceRefused(f"homing failed: ALARM:{reply.code} ({gp.describe_alarm(reply.code)})")
+            elif reply.kind == "greeting":
+                why = "the controller reset during homing"
+            elif reply.kind == "message" and "Unlocked" in reply.text:
+                unlocked = True
+        self.link.drain(self.resync_quiet_s, self.reply_timeout_s)  # status reports still on the way
+        if why is None and not saw_home:
+            why = "it unlocked instead of homing" if unlocked else "no status report showed a homing cycle"
+        return why
+
     def _settings(self) -> dict[int, float]:
         replies, _ = self._command("$$")
         return {r.setting[0]: r.setting[1] for r in replies if r.kind == "setting"}
@@ -403,8 +462,9 @@ class GrblTurntable:
     def _command(self, line: str, timeout: float | None = None) -> tuple[list[gp.Reply], bool]:
         """Send one line; return the lines before its ``ok`` and whether the exchange was clean.
 
-        Clean means sent once, answered ``ok`` with nothing garbled and no
-        resynchronisation.  A lost or garbled reply, or a parse-class error,
+        Clean means sent once, answered ``ok`` with nothing garbled, no
+        resynchronisation and no status report or greeting in between (which
+        would mean the reply stream was out of step).  A lost or garbled reply, or a parse-class error,
         is journalled, resynchronised and re-sent (at most ``retries`` times).
         """
         timeout = self.reply_timeout_s if timeout is None else timeout
@@ -416,7 +476,7 @@ class GrblTurntable:
                 while True:
                     reply = gp.parse_reply(self.link.readline(deadline))
                     if reply.kind == "ok":
-                        return info, attempt == 0
+                        return info, attempt == 0 and not any(r.kind in ("status", "greeting") for r in info)
                     if reply.kind == "error":
                         if reply.code in _RETRYABLE_ERRORS and attempt < self.retries:
                             why = f"error:{reply.code}"
@@ -487,7 +547,7 @@ class GrblTurntable:
         deadline = time.monotonic() + allowed
         self._last_alarm = None
         _, clean = self._command(command)
-        last_pos, last_change = None, time.monotonic()
+        last_pos, last_change, still = None, time.monotonic(), 0
         while True:
             now = time.monotonic()
             if now > deadline:
@@ -505,8 +565,8 @@ class GrblTurntable:
                 continue
             if status.state in ("Run", "Jog", "Home"):
                 if status.mpos != last_pos:
-                    last_pos, last_change = status.mpos, now
-                elif now - last_change > self.stall_timeout_s:
+                    last_pos, last_change, still = status.mpos, now, 0
+                elif self._stalled(still := still + 1, now - last_change):
                     raise DeviceTimeout(
                         f"turntable stalled at {status.mpos:.4f} deg while moving to {target:.4f} deg "
                         f"(no progress for {self.stall_timeout_s:g} s)"
@@ -515,6 +575,12 @@ class GrblTurntable:
                 raise DeviceRefused(f"controller entered state {status.state!r} while moving to {target:.4f} deg")
             if self.poll_interval_s:
                 time.sleep(self.poll_interval_s)
+
+    def _stalled(self, unchanged_polls: int, unchanged_s: float) -> bool:
+        """No progress for ``stall_timeout_s``: counted in polls (see the class docstring), else in seconds."""
+        if self.poll_interval_s > 0:
+            return unchanged_polls * self.poll_interval_s >= self.stall_timeout_s
+        return unchanged_s > self.stall_timeout_s
 
     def _confirm_idle_at(self, target: float, deadline: float) -> bool:
         """A second status report must also say Idle at ``target``: one report can be a garbled fluke."""
@@ -537,7 +603,10 @@ class GrblTurntable:
         deadline = time.monotonic() + self.stall_timeout_s
         previous = None
         while time.monotonic() < deadline:  # decelerating; a hung controller never leaves Run
-            status = self._status()
+            try:
+                status = self._status()
+            except DeviceTimeout:  # replies lost: the reset below stops the table anyway
+                break
             if status.state != "Run" or status.mpos == previous:
                 break
             previous = status.mpos
@@ -559,4 +628,6 @@ class GrblTurntable:
                 self._halt()
         except (RigError, OSError):
             self._forget()
+            with contextlib.suppress(RigError, OSError):  # a last reset byte, in case only the replies are lost
+                self.link.write(gp.RESET)
             self.link.close()
