@@ -27,8 +27,9 @@ ALLOWED: dict[str, set[str]] = {
     "session": BASE | {"rig", "hdr", "fit", "lighting", "session"},
     "sim": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim"},
     "evaluate": BASE | {"hdr", "fit", "lighting", "session", "sim", "evaluate"},
+    "report": BASE | {"hdr", "fit", "lighting", "session", "report"},
     "devices": BASE | {"rig", "sim", "session", "devices"},
-    "cli": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim", "evaluate", "devices", "cli"},
+    "cli": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim", "evaluate", "report", "devices", "cli"},
     "__main__": {"cli"},
     "__init__": set(),
 }

@@ -37,6 +37,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "brdfrig.cli.envsh",
     "brdfrig.cli.fit",
     "brdfrig.cli.render",
+    "brdfrig.cli.plot",
     "brdfrig.cli.bench",
 )
 

@@ -26,7 +26,7 @@ from brdfrig._atomic import write_text
 from brdfrig.errors import InputError
 from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
 
-__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf"]
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf", "open_brdf"]
 
 FORMAT_NAME = "brdfrig-brdf"
 FORMAT_VERSION = 1
@@ -111,3 +111,21 @@ def load_brdf(path) -> tuple[FittedBRDF, dict]:
     except (KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
         raise InputError(f"{path}: corrupt BRDF file: {exc}") from exc
     return brdf, doc.get("report", {})
+
+
+MEASURED_SUFFIXES = (".h5", ".binary")
+"""Suffixes of measured materials (neural fits, MERL tables) that :func:`open_brdf` also reads."""
+
+
+def open_brdf(path):
+    """Any BRDF a user may name: a brdfrig BRDF file (JSON) or a measured material (``.h5``, ``.binary``).
+
+    Returns the BRDF (a :class:`~brdfrig.fit.brdf.FittedBRDF`); errors as :func:`load_brdf` and
+    :func:`brdfrig.fit.measured.load_measured`.
+    """
+    if Path(path).suffix.lower() in MEASURED_SUFFIXES:
+        from brdfrig.fit.measured import load_measured
+
+        return load_measured(path)
+    return load_brdf(path)[0]
+

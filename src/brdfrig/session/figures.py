@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["fit_figure", "save_png", "tone_map"]
+__all__ = ["fit_figure", "png_bytes", "save_png", "tone_map"]
 
 
 def tone_map(rgb: np.ndarray, scale: float) -> np.ndarray:
@@ -83,15 +83,20 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     return save_png(fig, path, dpi=90)
 
 
-def save_png(fig, path: str | Path, *, dpi: int = 100) -> Path:
-    """Render a matplotlib figure to PNG, write it atomically (never a partial file) and close the figure."""
+def png_bytes(fig, *, dpi: int = 100) -> bytes:
+    """Render a matplotlib figure to PNG bytes and close the figure."""
     import matplotlib.pyplot as plt
-
-    from brdfrig._atomic import write_bytes as atomic_write_bytes
 
     buf = io.BytesIO()
     try:
         fig.savefig(buf, format="png", dpi=dpi)
     finally:
         plt.close(fig)
-    return atomic_write_bytes(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def save_png(fig, path: str | Path, *, dpi: int = 100) -> Path:
+    """Render a matplotlib figure to PNG, write it atomically (never a partial file) and close the figure."""
+    from brdfrig._atomic import write_bytes as atomic_write_bytes
+
+    return atomic_write_bytes(path, png_bytes(fig, dpi=dpi))
