@@ -172,3 +172,50 @@ def test_mirror_ball_as_rendered_by_the_fit_cli_test(probe_maps):
     ball = np.zeros((140, 140, 3), np.float32)
     ball[inside] = probe_maps["grace"](dirs[inside])
     assert np.abs(np.subtract(detect_sphere(ball), circle)).max() <= 0.5
+
+
+def _render_cli(tmp_path, n: int):
+    """What ``brdfrig render`` writes: a Lambertian sphere of radius n/2 centred in an n x n image."""
+    from brdfrig.cli.main import main
+    from brdfrig.fit.brdffile import save_brdf
+    from brdfrig.fit.models import DiffuseBRDF
+    from brdfrig.fit.system import ModelSpec
+    from brdfrig.hdr.envmap import latlong_directions
+    from brdfrig.hdr.exr import write_exr
+
+    d, _ = latlong_directions(32, 64)
+    env = (0.3 + 0.5 * (d[..., 1:2] + 1) + 2 * np.clip(d @ [0.3, 0.8, 0.5], 0, None)[..., None] ** 4) * [1, 0.8, 0.6]
+    write_exr(tmp_path / "env.exr", env.astype(np.float32), latlong=True)
+    lambert = np.outer([1.0, 2.0 / 3.0, 0.25], [0.8, 0.6, 0.4])  # a_l of a Lambertian albedo, bands 0..2
+    save_brdf(tmp_path / "brdf.json", DiffuseBRDF(ModelSpec("diffuse", 2, 0), lambert))
+    out = tmp_path / f"sphere{n}.exr"
+    assert main(["render", str(tmp_path / "brdf.json"), "--lighting", str(tmp_path / "env.exr"), "--size", str(n),
+                 "-o", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("n", [64, 200])
+def test_sphere_filling_the_frame_as_render_writes_it(tmp_path, n):
+    """Radius N/2, centred: the rim touches all four edges; found to 0.25 px (circle known by construction)."""
+    from brdfrig.hdr.exr import read_image
+
+    found = detect_sphere(read_image(_render_cli(tmp_path, n)))
+    assert np.abs(np.subtract(found, (n / 2, n / 2, n / 2))).max() <= 0.25, found
+
+
+def test_fit_finds_a_frame_filling_sphere_without_circle(tmp_path, capsys):
+    """``brdfrig fit`` on what ``brdfrig render`` wrote, no --circle: the circle it used is within 0.25 px."""
+    import json
+
+    from brdfrig.cli.main import main
+
+    image = _render_cli(tmp_path, 64)
+    assert main(["fit", "--scene", str(tmp_path / "env.exr"), str(image), "--model", "diffuse", "--lmax", "2",
+                 "--no-progress", "-o", str(tmp_path / "fit.json")]) == 0
+    used = json.loads((tmp_path / "fit.json").read_text())["provenance"]["inputs"][0]["circle"]
+    assert np.abs(np.subtract(used, (32, 32, 32))).max() <= 0.25, used
+
+
+def test_no_sphere_names_the_file_and_suggests_circle():
+    with pytest.raises(SphereNotFoundError, match=r"^flat\.exr: no sphere found in the image .*--circle cx,cy,r"):
+        detect_sphere(np.full((64, 64), 0.5, np.float32), name="flat.exr")

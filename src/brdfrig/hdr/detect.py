@@ -36,7 +36,8 @@ A sphere touching the frame edges (e.g. what ``brdfrig render`` writes: radius
 N/2, centred) leaves no background outside its rim where it touches them, so
 Hough sees no full circle.  When nothing is found, the search is repeated on
 the image padded by a margin of the background level (the median of the four
-corner patches); a circle found there is accepted if it lies within the frame.
+corner patches); a circle found there is accepted if it lies within the frame
+(to 0.5 px; its radius is then clipped to the frame).
 
 Coordinates follow MATH.md: x = column, y = row (down), pixel (i, j) has its
 centre at (j + 0.5, i + 0.5).
@@ -404,5 +405,5 @@ def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None
     cx, cy = cx - pad, cy - pad
     slack = 0.5  # px: a rim on the frame edge is found to within a fraction of a pixel
     if r > 0 and cx - r >= -slack and cy - r >= -slack and cx + r <= w + slack and cy + r <= h + slack:
-        return float(cx), float(cy), float(r)
+        return float(cx), float(cy), float(min(r, cx, cy, w - cx, h - cy))  # the rim is inside the frame
     raise SphereNotFoundError(f"{name}: no sphere found in the image ({first}); {hint}")
