@@ -27,6 +27,9 @@ a diffuse render of a real probe without resampling).
 
 from __future__ import annotations
 
+import functools
+import time
+
 import numpy as np
 
 from brdfrig.errors import InputError
@@ -37,6 +40,12 @@ __all__ = [
     "mitsuba_envmap",
     "sphere_scene",
     "render_sphere",
+    "PRINCIPLED_SCALARS",
+    "PRINCIPLED_START",
+    "ad_variant",
+    "principled_bsdf",
+    "render_principled",
+    "fit_principled",
 ]
 
 DEFAULT_UPSAMPLE = 4
@@ -173,3 +182,196 @@ def render_sphere(bsdf: dict, latlong, size: int, *, spp: int = 1024, seed: int 
     mi = require_mitsuba(variant)
     scene = mi.load_dict(sphere_scene(bsdf, latlong, size, spp=spp, upsample=upsample))
     return np.array(mi.render(scene, seed=int(seed)), dtype=np.float64)
+
+
+# --------------------------------------------------------------------------------------------
+# The peer: Mitsuba's ``principled`` BSDF fitted to one sphere image by inverse rendering.
+
+PRINCIPLED_SCALARS = ("roughness", "metallic", "specular", "spec_tint", "sheen", "clearcoat", "clearcoat_gloss")
+"""Scalar ``principled`` parameters the peer optimises, each in [0, 1], besides the RGB ``base_color``."""
+PRINCIPLED_START = {"base_color": [0.5, 0.5, 0.5], "roughness": 0.5, "metallic": 0.0, "specular": 0.5,
+                    "spec_tint": 0.0, "sheen": 0.0, "clearcoat": 0.0, "clearcoat_gloss": 0.5}
+"""Starting point of :func:`fit_principled` (Mitsuba's defaults, mid roughness)."""
+_ROUGHNESS_MIN = 0.02
+MIN_LLVM = (19, 0, 0)
+"""Oldest libLLVM drjit is allowed to use here: with Debian 12's LLVM 15, drjit 1.5 aborts the process
+compiling Mitsuba's kernels ("Cannot select fminimum"); LLVM 19 (Debian's ``libllvm19``) works."""
+
+
+@functools.cache
+def ad_variant() -> str | None:
+    """``"llvm_ad_rgb"`` when Mitsuba's differentiable CPU variant can run here (drjit found libLLVM
+    >= :data:`MIN_LLVM`), else None.  Leaves ``scalar_rgb`` selected."""
+    try:
+        mi = require_mitsuba("llvm_ad_rgb")
+    except (ImportError, ValueError, RuntimeError):
+        return None
+    import drjit as dr
+
+    try:
+        ok = tuple(dr.detail.llvm_version()) >= MIN_LLVM
+    except (AttributeError, RuntimeError):
+        ok = False
+    mi.set_variant("scalar_rgb")
+    return "llvm_ad_rgb" if ok else None
+
+
+def principled_bsdf(params: dict) -> dict:
+    """Mitsuba ``principled`` BSDF dictionary of ``params`` (keys of :data:`PRINCIPLED_START`; missing: start values).
+
+    Raises
+    ------
+    InputError
+        On an unknown key or a value outside [0, 1] (``base_color`` three values).
+    """
+    unknown = set(params) - set(PRINCIPLED_START)
+    if unknown:
+        raise InputError(f"unknown principled parameter(s) {sorted(unknown)}; expected {sorted(PRINCIPLED_START)}")
+    values = {**PRINCIPLED_START, **params}
+    colour = np.asarray(values["base_color"], dtype=float).reshape(-1)
+    if colour.size != 3 or not np.all((colour >= 0) & (colour <= 1)):
+        raise InputError(f"principled base_color must be three values in [0, 1], got {values['base_color']}")
+    bsdf = {"type": "principled", "base_color": {"type": "rgb", "value": colour.tolist()}}
+    for key in PRINCIPLED_SCALARS:
+        v = float(values[key])
+        if not 0.0 <= v <= 1.0:
+            raise InputError(f"principled {key} must be in [0, 1], got {values[key]}")
+        bsdf[key] = v
+    return bsdf
+
+
+def render_principled(params: dict, latlong, size: int, *, spp: int = 1024, seed: int = 0,
+                      variant: str | None = None) -> np.ndarray:
+    """Mitsuba render ``(size, size, 3)`` of the ``principled`` sphere with ``params`` under ``latlong``.
+
+    ``variant`` None: the AD variant where it runs (faster), else ``scalar_rgb``.
+    """
+    variant = variant or ad_variant() or "scalar_rgb"
+    return render_sphere(principled_bsdf(params), latlong, size, spp=spp, seed=seed, variant=variant)
+
+
+def _target(image, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The image as (N, N, 3) float32 and the weight mask of its interior sphere pixels (MATH.md disc)."""
+    from brdfrig.hdr.sphere import DEFAULT_LIMB_MARGIN_PX, sphere_pixels
+
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    if img.ndim != 3 or img.shape[0] != img.shape[1] or img.shape[2] not in (1, 3) or img.shape[0] < 8:
+        raise InputError(f"{name}: expected a square (N, N, 1 or 3) sphere image with N >= 8, got shape {np.shape(image)}")
+    img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
+    n = img.shape[0]
+    px = sphere_pixels((n, n), (n / 2, n / 2, n / 2), margin_px=DEFAULT_LIMB_MARGIN_PX)
+    mask = np.zeros((n, n, 3))
+    good = (px.weights > 0) & np.all(np.isfinite(img[px.rows, px.cols]), axis=1)
+    mask[px.rows[good], px.cols[good]] = 1.0
+    if np.any(img[mask > 0] < 0):
+        raise InputError(f"{name}: negative radiance inside the sphere")
+    if not np.any(img[mask > 0] > 0):
+        raise InputError(f"{name}: the sphere is black")
+    return np.nan_to_num(img).astype(np.float32), mask.astype(np.float32)
+
+
+def _clamped(values: dict) -> dict:
+    out = {k: np.clip(np.asarray(v, float), 0.0, 1.0) for k, v in values.items()}
+    out["roughness"] = np.clip(out["roughness"], _ROUGHNESS_MIN, 1.0)
+    return {k: (v.tolist() if v.ndim else float(v)) for k, v in out.items()}
+
+
+_KEYS = {"base_color": "sphere.bsdf.base_color.value", "specular": "sphere.bsdf.specular",
+         **{k: f"sphere.bsdf.{k}.value" for k in PRINCIPLED_SCALARS if k != "specular"}}
+"""Where each optimised ``principled`` parameter sits in Mitsuba's scene parameters (``mi.traverse``)."""
+
+
+def _fit_ad(target, mask, latlong, start: dict, spp: int, iterations: int, seed: int, lr: float) -> dict:
+    """Adam on the relative squared error over ``mask``, differentiated by Mitsuba (``prb``, ``llvm_ad_rgb``)."""
+    mi = require_mitsuba("llvm_ad_rgb")
+    import drjit as dr
+
+    n = target.shape[0]
+    scene = mi.load_dict(sphere_scene(principled_bsdf(start), latlong, n, spp=spp, sampler="independent",
+                                      integrator="prb"))
+    params = mi.traverse(scene)
+    opt = mi.ad.Adam(lr=lr)
+    for key in _KEYS.values():
+        opt[key] = params[key]
+    params.update(opt)
+    ref, weight = mi.TensorXf(target), mi.TensorXf(mask)
+    norm = float(np.sum(mask * target.astype(np.float64) ** 2))
+    for it in range(int(iterations)):
+        image = mi.render(scene, params, spp=spp, seed=seed + 2 * it, seed_grad=seed + 2 * it + 1)
+        loss = dr.sum(weight * dr.square(image - ref), axis=None) / norm
+        dr.backward(loss)
+        opt.step()
+        for name, key in _KEYS.items():
+            opt[key] = dr.clip(opt[key], _ROUGHNESS_MIN if name == "roughness" else 0.0, 1.0)
+        params.update(opt)
+    out = {name: np.array(params[key], dtype=np.float64).reshape(-1) for name, key in _KEYS.items()}
+    return _clamped({k: (v if k == "base_color" else v[0]) for k, v in out.items()})
+
+
+def _fit_search(target, mask, latlong, start: dict, spp: int, iterations: int, seed: int) -> dict:
+    """Nelder-Mead over ``scalar_rgb`` renders with one fixed seed (a deterministic objective)."""
+    from scipy.optimize import minimize
+
+    x0 = np.concatenate([start["base_color"], [start[k] for k in PRINCIPLED_SCALARS]])
+    norm = float(np.sum(mask * target.astype(np.float64) ** 2))
+
+    def unpack(x):
+        return _clamped({"base_color": x[:3], **{k: x[3 + i] for i, k in enumerate(PRINCIPLED_SCALARS)}})
+
+    def loss(x):
+        image = render_sphere(principled_bsdf(unpack(x)), latlong, target.shape[0], spp=spp, seed=seed)
+        return float(np.sum(mask * (image - target) ** 2)) / norm
+
+    res = minimize(loss, x0, method="Nelder-Mead", options={"maxfev": int(iterations), "xatol": 1e-3, "fatol": 1e-5})
+    return unpack(res.x)
+
+
+def fit_principled(image, latlong_fit, *, spp: int = 16, iterations: int = 120, seed: int = 0,
+                   lr: float = 0.03, method: str = "auto") -> tuple[dict, float]:
+    """Fit Mitsuba's ``principled`` BSDF to one sphere image under known lighting (the peer of ``fit_brdf``).
+
+    Parameters
+    ----------
+    image : (N, N, C) array_like, C in {1, 3}
+        Linear radiance of the sphere (MATH.md: centred, radius N / 2, orthographic view from +z);
+        pixels at least 2 px inside the limb are fitted, non-finite ones ignored.
+    latlong_fit : (H, W, C) array_like
+        The lighting of ``image`` (MATH.md lat-long convention).
+    spp : int
+        Samples per pixel of each rendered iterate.
+    iterations : int
+        Gradient steps (``method="ad"``) or objective evaluations (``"search"``).
+    seed : int
+        Seed of Mitsuba's samples (iteration ``i`` uses ``seed + 2 i`` and ``seed + 2 i + 1``).
+    lr : float
+        Adam's learning rate (parameters are in [0, 1]).
+    method : {"auto", "ad", "search"}
+        ``ad``: differentiable rendering (``llvm_ad_rgb``, Adam, parameters clipped to their ranges
+        after each step); ``search``: Nelder-Mead over ``scalar_rgb`` renders; ``auto``: ``ad``
+        where :func:`ad_variant` finds it runnable, else ``search``.
+
+    Returns
+    -------
+    params : dict
+        ``base_color`` (three values) and :data:`PRINCIPLED_SCALARS`, each in [0, 1]; input of
+        :func:`render_principled`.
+    seconds : float
+        Wall-clock time of the fit (Mitsuba's kernel compilation included).
+    """
+    if method not in ("auto", "ad", "search"):
+        raise InputError(f"method must be 'auto', 'ad' or 'search', got {method!r}")
+    if int(spp) < 1 or int(iterations) < 1 or not lr > 0:
+        raise InputError(f"spp and iterations must be >= 1 and lr > 0 (spp={spp}, iterations={iterations}, lr={lr})")
+    target, mask = _target(image, "image")
+    _check_latlong(latlong_fit, "latlong_fit")
+    t0 = time.perf_counter()
+    if method == "auto":
+        method = "ad" if ad_variant() else "search"
+    start = dict(PRINCIPLED_START)
+    if method == "ad":
+        params = _fit_ad(target, mask, latlong_fit, start, int(spp), int(iterations), int(seed), float(lr))
+    else:
+        params = _fit_search(target, mask, latlong_fit, start, int(spp), int(iterations), int(seed))
+    return params, time.perf_counter() - t0
