@@ -44,13 +44,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numba
 import numpy as np
 
+from brdfrig._atomic import write_bytes
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.scene import Environment
 
@@ -507,16 +506,7 @@ def write_merl(path, brdf: TabulatedBRDF) -> Path:
         raise ValueError(f"{path}: MERL files hold 3 channels, the table has {brdf.channels}")
     data = np.moveaxis(brdf.table / np.asarray(MERL_SCALES), -1, 0)
     data = np.where(np.isnan(data), -1.0, data).astype("<f8")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(np.asarray(MERL_SHAPE, dtype="<i4").tobytes())
-            f.write(np.ascontiguousarray(data).tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_bytes(path, np.asarray(MERL_SHAPE, dtype="<i4").tobytes() + np.ascontiguousarray(data).tobytes())
 
 
 def load_measured(path) -> TabulatedBRDF | NeuralBRDF:

@@ -265,6 +265,8 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from brdfrig.session.figures import save_png
+
     parser = argparse.ArgumentParser(prog="python -m brdfrig.sim.bench", description=main.__doc__)
     parser.add_argument("--out", default="sim_bench.png", help="PNG file to write")
     parser.add_argument("--carries", choices=("rig", "samples"), default="rig")
@@ -279,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         ax.set_title(f"carries={args.carries}, table at {angle:g} deg (radiance x0.8, gamma 2.2; clipped)")
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(args.out, dpi=100)
+    save_png(fig, args.out)
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
