@@ -15,14 +15,16 @@ command whose reply was lost can be sent again):
 ``!``               feed hold (realtime byte): decelerate and stop
 ``$$``              dump settings (``$100=80.000`` lines, then ``ok``)
 ``$100=<v>``        write steps per unit (degree) to EEPROM
-``$H``              homing cycle; ``ok`` once it completes
+``$H``              homing cycle; ``ok`` once it completes (a ``?`` sent during
+                    the cycle is answered ``<Home|...>`` before that ``ok``)
 ``G90 G0 X<deg>``   absolute rapid move of the table to ``<deg>`` degrees
 ==================  =========================================================
 
 The simulator also implements ``~`` (cycle start), ``$X`` (kill alarm lock:
 ``[MSG:Caution: Unlocked]``, ``ok``; the driver never sends it, but line
-noise can turn ``$H`` into ``$X``, which the driver detects by that message),
-``G91``, ``G1 F<rate>`` and empty lines (answered ``ok``, like GRBL).
+noise can turn ``$H`` into ``$X``, and that message can be lost too, so the
+driver accepts a homing only on seeing a ``Home`` status report), ``G91``,
+``G1 F<rate>`` and empty lines (answered ``ok``, like GRBL).
 
 Replies it understands:
 
