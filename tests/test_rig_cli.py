@@ -37,10 +37,10 @@ def test_wrong_port_is_reported_naming_the_setting(capsys):
 
 
 def test_impossible_values_name_the_setting(capsys):
-    assert main(["rig", "check", "--port", "/dev/null", "--steps-per-degree", "-80"]) == 1
-    assert "steps_per_degree must be a positive" in capsys.readouterr().out
+    assert main(["rig", "check", "--port", "/dev/null", "--steps-per-degree", "-80"]) == 2  # refused up front
+    assert "argument --steps-per-degree: must be a number in (0, 100000], got '-80'" in capsys.readouterr().err
     assert main(["rig", "check", "--simulate", "--exposure", "0"]) == 2
-    assert "--exposure must be a positive" in capsys.readouterr().err
+    assert "argument --exposure: must be a number in (0, 3600], got '0'" in capsys.readouterr().err
 
 
 RIG_BENCH = Path(__file__).resolve().parents[1] / "src" / "brdfrig" / "config" / "rig-bench.toml"

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 from brdfrig.errors import InputError
 
-__all__ = ["Range"]
+__all__ = ["Range", "BANDS", "EXPOSURE_S", "PIXELS", "ALBEDO", "FULL_WELL_E", "READ_NOISE_E", "BAUD",
+           "STEPS_PER_DEGREE", "BACKLASH_DEG"]
 
 
 @dataclass(frozen=True)
@@ -87,3 +88,15 @@ class Range:
 
         parse.__name__ = "list"
         return parse
+
+
+# Quantities that both the command line and the TOML configs take: one range each.
+BANDS = Range(0, 30, integer=True)  #: SH band limits lmax, pmax
+EXPOSURE_S = Range(0, 3600, open_lo=True)  #: exposure times, seconds
+PIXELS = Range(-1e5, 1e5)  #: circle centres and radii, pixel boxes
+ALBEDO = Range(0, 1, open_lo=True)  #: reflectances
+FULL_WELL_E = Range(1, 1e7)  #: sensor full-well capacity, electrons
+READ_NOISE_E = Range(0, 1e4)  #: read noise, electrons
+BAUD = Range(300, 4_000_000, integer=True)  #: serial baud rates
+STEPS_PER_DEGREE = Range(0, 1e5, open_lo=True)  #: motor steps per table degree
+BACKLASH_DEG = Range(0, 45)  #: gear play, degrees

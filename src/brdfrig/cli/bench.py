@@ -29,6 +29,7 @@ import sys
 from pathlib import Path
 
 from brdfrig.errors import InputError
+from brdfrig.ranges import Range
 from brdfrig.evaluate.cache import CachedGroundTruth
 from brdfrig.evaluate.probes import box_downsample as _box_downsample
 from brdfrig.evaluate.measured import add_arguments as add_measured_arguments
@@ -48,7 +49,7 @@ def register(subparsers) -> None:
     p.add_argument("--quick", action="store_true", help="small sphere, band limits 1-3, one scene (< 30 s)")
     p.add_argument("--out", type=Path, default=Path("bench-out"),
                    help="directory for bench.png, bench.json and the ground-truth cache gt-cache/ (default: %(default)s)")
-    p.add_argument("--budget", type=float, default=None, metavar="SECONDS",
+    p.add_argument("--budget", type=Range(0, 86400, open_lo=True).arg(), default=None, metavar="SECONDS",
                    help="soft time budget of the table's fits: slow cases (>= 1 s) are repeated only while it "
                         "allows; every case runs at least once, faster ones 3 times (default: 210 full, 20 quick)")
     p.add_argument("--probes", type=Path, default=DEFAULT_PROBES, help="directory of lat-long .hdr/.exr probes (default: %(default)s)")

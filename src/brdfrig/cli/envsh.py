@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from brdfrig.cli._output import add_output_arguments, check_output
 from brdfrig.errors import InputError
 
 DEFAULT_BANDS = (5, 15, 35)
@@ -39,7 +40,7 @@ def register(subparsers) -> None:
     p.add_argument("env", metavar="ENV", type=Path, help="lat-long environment map (.hdr or .exr, OpenEXR LatLong layout)")
     p.add_argument("--bands", default=",".join(map(str, DEFAULT_BANDS)), help="band limits to show (default: 5,15,35)")
     p.add_argument("--window", choices=WINDOW_CHOICES, default="none", help="taper against ringing (default: none)")
-    p.add_argument("-o", "--output", required=True, type=Path, metavar="FIG.png", help="figure to write (PNG)")
+    add_output_arguments(p, "FIG.png", "figure to write (PNG)")
     p.set_defaults(func=run)
 
 
@@ -60,15 +61,12 @@ def run(args: argparse.Namespace) -> int:
 
     from brdfrig.fit.shproject import project_latlong, reconstruct_latlong, sh_window
     from brdfrig.hdr.envmap import latlong_directions
-    from brdfrig.session.figures import save_png
+    from brdfrig.report.figures import save_png
     from brdfrig.hdr.exr import read_image
 
     bands = parse_bands(args.bands)
-    out = Path(args.output)
-    if out.suffix.lower() != ".png":
-        raise InputError(f"--output must be a .png file, got {out}")
-    if not out.parent.is_dir():
-        raise OSError(f"--output directory does not exist: {out.parent}")
+    out = check_output(args.output, [args.env], suffixes=(".png",), writes="a PNG figure", no_clobber=args.no_clobber,
+                       option="--output")
     image = read_image(args.env).astype(np.float64)
     if image.shape[2] == 1:
         image = np.repeat(image, 3, axis=2)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+from brdfrig.ranges import Range
+
 __all__ = ["register", "add_library_argument", "open_library"]
 
 
@@ -33,7 +35,7 @@ def register(subparsers) -> None:
     add.add_argument("root", help="directory to search for sessions")
     ls = sub.add_parser("list", help="list catalogued fits, newest first")
     ls.add_argument("--model", help="only fits of this model")
-    ls.add_argument("--max-error", type=float, metavar="E",
+    ls.add_argument("--max-error", type=Range(0, 1e6).arg(), metavar="E",
                     help="only fits whose relighting estimate (else image error) is at most E (e.g. 0.05 = 5%%)")
     ls.add_argument("--sample", metavar="NAME", help="only this sample")
     ls.add_argument("--since", metavar="DATE", help="only fits recorded on or after DATE (YYYY-MM-DD)")

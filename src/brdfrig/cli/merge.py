@@ -20,11 +20,11 @@ import argparse
 from pathlib import Path
 
 from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.ranges import EXPOSURE_S as EXPOSURE_TIME
+from brdfrig.ranges import FULL_WELL_E as FULL_WELL
+from brdfrig.ranges import READ_NOISE_E as READ_NOISE
 from brdfrig.ranges import Range
 
-EXPOSURE_TIME = Range(0, 3600, open_lo=True)  # seconds
-FULL_WELL = Range(1, 1e7)  # electrons
-READ_NOISE = Range(0, 1e4)  # electrons
 CLIP_RADIUS = Range(0, 16, integer=True)  # pixels
 
 

@@ -21,10 +21,8 @@ import argparse
 from pathlib import Path
 
 from brdfrig.cli._output import add_output_arguments, check_output
-from brdfrig.ranges import Range
+from brdfrig.ranges import ALBEDO, PIXELS, Range
 
-PIXELS = Range(-1e5, 1e5)  # circle centres, radii and boxes, pixels
-ALBEDO = Range(0, 1, open_lo=True)
 RIM = Range(0, 1, open_lo=True)
 CAMERA_MASK = Range(0, 90)  # degrees
 WIDTH = Range(8, 16384, integer=True)  # lat-long pixels

@@ -24,18 +24,20 @@ from brdfrig.cli.library import add_library_argument, open_library
 
 
 def register(subparsers) -> None:
+    from brdfrig.ranges import BANDS, Range
     from brdfrig.session.config import FIT_MODELS, FIT_SOLVERS
 
     parser = subparsers.add_parser("refit", help="verify a stored session and fit it again (offline)",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dir", nargs="?", help="session directory")
     parser.add_argument("--batch", metavar="ROOT", help="refit every session found below ROOT on a Dask cluster")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
+    parser.add_argument("--workers", type=Range(1, 256, integer=True).arg(), default=2,
+                        help="worker processes of the local cluster (default 2)")
     parser.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask scheduler, e.g. tcp://host:8786")
     parser.add_argument("--preset", help="fit preset TOML file ([fit] table); options below override it")
     parser.add_argument("--model", choices=FIT_MODELS)
-    parser.add_argument("--lmax", type=int, help="lighting band limit")
-    parser.add_argument("--pmax", type=int, help="outgoing band limit (full model)")
+    parser.add_argument("--lmax", type=BANDS.arg(), help=f"lighting band limit{BANDS.text()}")
+    parser.add_argument("--pmax", type=BANDS.arg(), help=f"outgoing band limit (full model){BANDS.text()}")
     parser.add_argument("--solver", choices=FIT_SOLVERS)
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_library_argument(parser)

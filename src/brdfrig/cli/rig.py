@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from brdfrig.errors import InputError
+from brdfrig.ranges import BACKLASH_DEG, BAUD, EXPOSURE_S, STEPS_PER_DEGREE
 
 CHECK_ANGLE_DEG = 10.0
 
@@ -54,13 +55,14 @@ def register(subparsers) -> None:
     c.add_argument("--config", help="rig or session TOML file whose [rig] table describes the devices")
     c.add_argument("--simulate", action="store_true", help="use the GRBL simulator and the simulated camera")
     c.add_argument("--port", help="turntable serial port (e.g. /dev/ttyUSB0); omit for no turntable")
-    c.add_argument("--baud", type=int, default=115200, help="turntable baud rate (default 115200)")
-    c.add_argument("--steps-per-degree", type=float, default=80.0, help="motor steps per table degree")
-    c.add_argument("--backlash", type=float, default=0.5, help="gear play in degrees")
+    c.add_argument("--baud", type=BAUD.arg(), default=115200, help="turntable baud rate (default 115200)")
+    c.add_argument("--steps-per-degree", type=STEPS_PER_DEGREE.arg(), default=80.0, help="motor steps per table degree")
+    c.add_argument("--backlash", type=BACKLASH_DEG.arg(), default=0.5, help="gear play in degrees")
     c.add_argument("--camera", choices=("gphoto2", "watch", "sim", "none"), default="none",
                    help="camera backend (default none)")
     c.add_argument("--watch-dir", default="", help="folder the tethering software writes into (--camera watch)")
-    c.add_argument("--exposure", type=float, default=0.01, help="test exposure time in seconds (default 0.01)")
+    c.add_argument("--exposure", type=EXPOSURE_S.arg(), default=0.01,
+                   help="test exposure time in seconds (default 0.01)")
     c.add_argument("--out", help="folder for the test picture (default: a temporary folder)")
     p.set_defaults(func=run)
 
@@ -163,8 +165,6 @@ def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Pa
 
 
 def run(args) -> int:
-    if args.exposure <= 0:
-        raise InputError(f"--exposure must be a positive time in seconds, got {args.exposure}")
     table_s, camera_s, sim_opts, carries = _settings(args)
     if table_s.backend == "none" and camera_s.backend == "none":
         raise InputError("nothing was checked: no turntable and no camera configured (give --config FILE, "

@@ -42,7 +42,18 @@ from typing import Any, Callable
 
 from brdfrig.errors import ConfigError
 from brdfrig.fit.registry import MODELS, SOLVERS
-from brdfrig.ranges import Range
+from brdfrig.ranges import (
+    ALBEDO,
+    BACKLASH_DEG,
+    BANDS,
+    BAUD,
+    EXPOSURE_S,
+    FULL_WELL_E,
+    PIXELS,
+    READ_NOISE_E,
+    STEPS_PER_DEGREE,
+    Range,
+)
 
 __all__ = [
     "ConfigError",
@@ -69,10 +80,7 @@ FIT_SOLVERS = SOLVERS
 CAMERA_BACKENDS = ("gphoto2", "watch", "sim")
 TURNTABLE_BACKENDS = ("grbl", "sim", "none")
 CARRIES = ("samples", "rig")
-MAX_EXPOSURE_S = 3600.0  # longest exposure time (s) a plan may ask for
-_EXPOSURE_TIME = Range(0, MAX_EXPOSURE_S, open_lo=True)
 _ANGLE = Range(-360, 360)
-_PIXELS = Range(-1e5, 1e5)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -223,6 +231,10 @@ def _integer(lo: int | None = None, hi: int | None = None) -> Checker:
     return lambda v, where: rng.check(v, where, ConfigError)
 
 
+def _in(rng: Range) -> Checker:
+    return lambda v, where: rng.check(v, where, ConfigError)
+
+
 def _choice(options: tuple[str, ...]) -> Checker:
     def check(v: Any, where: str) -> str:
         if v not in options:
@@ -268,19 +280,19 @@ def _angles(*, nonempty: bool) -> Checker:
 def _exposure(v: Any, where: str) -> str | tuple[float, ...]:
     if v == "auto":
         return "auto"
-    if isinstance(v, list) and v and all(_is_number(t) and _EXPOSURE_TIME.contains(t) for t in v):
+    if isinstance(v, list) and v and all(_is_number(t) and EXPOSURE_S.contains(t) for t in v):
         if len(set(v)) != len(v):
             raise ConfigError(f"{where} repeats an exposure time: {v!r}")
         return tuple(sorted(float(t) for t in v))
     raise ConfigError(
-        f"{where} must be \"auto\" or a non-empty list of exposure times in seconds{_EXPOSURE_TIME.text()} "
+        f"{where} must be \"auto\" or a non-empty list of exposure times in seconds{EXPOSURE_S.text()} "
         f"(e.g. [0.001, 0.004, 0.016]), got {v!r}"
     )
 
 
 def _circle(v: Any, where: str) -> tuple[float, float, float]:
-    if not (isinstance(v, list) and len(v) == 3 and all(_is_number(c) and _PIXELS.contains(c) for c in v)) or v[2] <= 0:
-        raise ConfigError(f"{where} must be [cx, cy, r] in pixels with r > 0 (each{_PIXELS.text()}), got {v!r}")
+    if not (isinstance(v, list) and len(v) == 3 and all(_is_number(c) and PIXELS.contains(c) for c in v)) or v[2] <= 0:
+        raise ConfigError(f"{where} must be [cx, cy, r] in pixels with r > 0 (each{PIXELS.text()}), got {v!r}")
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
@@ -305,9 +317,9 @@ def _check_keys(table: dict, schema: dict[str, Checker], section: str, source: s
 _TURNTABLE_SCHEMA: dict[str, Checker] = {
     "backend": _choice(TURNTABLE_BACKENDS),
     "port": _string,
-    "baud": _integer(300, 4_000_000),
-    "steps_per_degree": _number(0, 1e5, open_lo=True),
-    "backlash_deg": _number(0, 45),
+    "baud": _in(BAUD),
+    "steps_per_degree": _in(STEPS_PER_DEGREE),
+    "backlash_deg": _in(BACKLASH_DEG),
     "speed_deg_s": _number(0.1, 3600),
     "timeout_s": _number(0, 3600, open_lo=True),
 }
@@ -318,8 +330,8 @@ _CAMERA_SCHEMA: dict[str, Checker] = {
     "watch_dir": _string,
     "timeout_s": _number(0, 3600, open_lo=True),
     "overhead_s": _number(0, 600),
-    "full_well_e": _number(1, 1e7),
-    "read_noise_e": _number(0, 1e4),
+    "full_well_e": _in(FULL_WELL_E),
+    "read_noise_e": _in(READ_NOISE_E),
 }
 _RIG_SCHEMA: dict[str, Checker] = {
     "carries": _choice(CARRIES),
@@ -329,7 +341,7 @@ _RIG_SCHEMA: dict[str, Checker] = {
 }
 _PROBE_SCHEMA: dict[str, Checker] = {
     "circle": _circle,
-    "albedo": _number(0, 1, open_lo=True),
+    "albedo": _in(ALBEDO),
     "rim": _number(0.5, 1, open_lo=True),
 }
 _SAMPLE_SCHEMA: dict[str, Checker] = {"name": _name, "circle": _circle}
@@ -339,7 +351,7 @@ _PLAN_SCHEMA: dict[str, Checker] = {
     "probe_rotations": _angles(nonempty=True),
     "exposure": _exposure,
     "target_snr": _number(1, 1000),
-    "meter_time_s": _number(0, MAX_EXPOSURE_S, open_lo=True),
+    "meter_time_s": _in(EXPOSURE_S),
     "stop_step": _number(0.33, 4),
     "max_exposures": _integer(1, 20),
     "settle_s": _number(0, 600),
@@ -348,8 +360,8 @@ _PLAN_SCHEMA: dict[str, Checker] = {
 }
 _FIT_SCHEMA: dict[str, Checker] = {
     "model": _choice(FIT_MODELS),
-    "lmax": _integer(0, 30),
-    "pmax": _integer(0, 30),
+    "lmax": _in(BANDS),
+    "pmax": _in(BANDS),
     "solver": _choice(FIT_SOLVERS),
 }
 _SESSION_SCHEMA: dict[str, Checker] = {"name": _name, "notes": _string}

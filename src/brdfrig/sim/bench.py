@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from brdfrig.session.figures import save_png
+    from brdfrig.report.figures import save_png
 
     parser = argparse.ArgumentParser(prog="python -m brdfrig.sim.bench", description=main.__doc__)
     parser.add_argument("--out", default="sim_bench.png", help="PNG file to write")
