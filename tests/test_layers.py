@@ -2,8 +2,8 @@
 
 Layers, bottom up: ``errors``/``_atomic`` (no brdfrig imports); ``rig`` (devices), ``hdr`` (images)
 and ``fit`` (numbers), which never import each other; ``lighting`` (the one hdr<->fit bridge);
-``session``; ``sim`` and ``evaluate``; ``devices``; ``cli`` on top, imported by nothing but
-``__main__``.
+``report`` (figures, plots, HTML); ``session``; ``sim`` and ``evaluate``; ``devices``; ``cli`` on
+top, imported by nothing but ``__main__``.
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ ALLOWED: dict[str, set[str]] = {
     "hdr": BASE | {"hdr"},
     "fit": BASE | {"fit"},
     "lighting": BASE | {"hdr", "fit"},
-    "session": BASE | {"rig", "hdr", "fit", "lighting", "session"},
-    "sim": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim"},
-    "evaluate": BASE | {"hdr", "fit", "lighting", "session", "sim", "evaluate"},
-    "report": BASE | {"hdr", "fit", "lighting", "session", "report"},
+    "session": BASE | {"rig", "hdr", "fit", "lighting", "report", "session"},
+    "sim": BASE | {"rig", "hdr", "fit", "lighting", "report", "session", "sim"},
+    "evaluate": BASE | {"hdr", "fit", "lighting", "report", "session", "sim", "evaluate"},
+    "report": BASE | {"hdr", "fit", "lighting", "report"},
     "devices": BASE | {"rig", "sim", "session", "devices"},
     "cli": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim", "evaluate", "report", "devices", "cli"},
     "__main__": {"cli"},

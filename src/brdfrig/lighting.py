@@ -16,7 +16,11 @@ from brdfrig.fit.scene import Environment, LatLongMap, Scene
 from brdfrig.hdr.envmap import latlong_directions
 from brdfrig.hdr.sphere import sphere_pixels
 
-__all__ = ["environment_from_latlong", "read_latlong", "environment_from_probe", "scene_from_image"]
+__all__ = ["environment_from_latlong", "read_latlong", "environment_from_probe", "scene_from_image",
+           "standard_lightings"]
+
+STANDARD_HEIGHT = 64
+"""Rows of the standard lat-long lightings (128 x 64 cells, 2.8 degrees each)."""
 
 
 def environment_from_latlong(image, rotation=None, *, name: str = "lighting") -> Environment:
@@ -126,3 +130,34 @@ def scene_from_image(env: Environment, image, circle, *, margin_px: float = 2.0,
     radiance = img[px.rows, px.cols]
     weights = np.where(np.all(np.isfinite(radiance), axis=1), px.weights, 0.0)
     return Scene(env, px.normals, np.nan_to_num(radiance), weights)
+
+
+def _blob(dirs: np.ndarray, centre, width_deg: float) -> np.ndarray:
+    """A smooth light of angular radius ~``width_deg`` around the unit direction ``centre``."""
+    c = np.asarray(centre, dtype=np.float64)
+    c = c / np.linalg.norm(c)
+    cos_w = np.cos(np.radians(width_deg))
+    return np.exp((dirs @ c - 1.0) / (1.0 - cos_w))
+
+
+def standard_lightings(height: int = STANDARD_HEIGHT) -> dict[str, Environment]:
+    """Three fixed RGB lightings shipped with brdfrig, for reports and export checks (radiance, 1 = white sky).
+
+    - ``overcast``: a bright sky dome over a dark ground, brightest at the zenith (+y);
+    - ``studio``: a large soft key light up-left-front, a smaller fill right, a dim grey surround;
+    - ``sunset``: a small warm sun 10 degrees above the horizon behind-left, a blue sky, a brown ground.
+
+    They are analytic (no file needed) and lat-long (cell-integrating quadrature applies).
+    """
+    dirs, _ = latlong_directions(height, 2 * height)
+    y = dirs[..., 1]
+    sky = np.clip(y, 0.0, 1.0)
+    overcast = (0.15 + 1.6 * sky**0.6)[..., None] * np.array([1.0, 1.0, 1.0]) * np.where(y > 0, 1.0, 0.25)[..., None]
+    studio = (0.05 + 8.0 * _blob(dirs, (-0.5, 0.6, 0.6), 12.0) + 2.5 * _blob(dirs, (0.8, 0.1, 0.5), 6.0))[..., None] \
+        * np.array([1.0, 0.98, 0.95])
+    sun = 600.0 * _blob(dirs, (-0.6, np.sin(np.radians(10.0)), -0.75), 1.5)[..., None] * np.array([1.0, 0.6, 0.3])
+    blue = (0.3 + 0.7 * sky)[..., None] * np.array([0.35, 0.5, 0.9]) * (y > 0)[..., None]
+    ground = np.array([0.12, 0.08, 0.05]) * (y <= 0)[..., None]
+    return {name: environment_from_latlong(img, name=name)
+            for name, img in (("overcast", overcast), ("studio", studio), ("sunset", sun + blue + ground))}
+

@@ -18,9 +18,7 @@ import sys
 
 from brdfrig.cli._output import add_output_arguments, check_output
 from brdfrig.fit.registry import MODELS, SOLVERS
-from brdfrig.ranges import Range
-
-BANDS = Range(0, 30, integer=True)  # SH band limits
+from brdfrig.ranges import BANDS
 
 
 def register(subparsers) -> None:
@@ -43,6 +41,8 @@ def register(subparsers) -> None:
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--figure", default=None, help="also write a PNG: each scene's image, the fit's rendering and the residual")
+    p.add_argument("--report", default=None, metavar="REPORT.html",
+                   help="also write a self-contained HTML report: spheres, relighting, BRDF plots, statistics")
     add_output_arguments(p, "BRDF.json", "output BRDF file (JSON)")
     p.set_defaults(func=run)
 
@@ -50,12 +50,12 @@ def register(subparsers) -> None:
 def parse_circle(text: str, option: str = "--circle") -> tuple[float, float, float]:
     """``'cx,cy,r'`` -> floats; InputError naming ``option`` otherwise."""
     from brdfrig.errors import InputError
-    from brdfrig.ranges import Range
+    from brdfrig.ranges import PIXELS
 
     parts = text.split(",")
     if len(parts) != 3:
         raise InputError(f"{option} must be 'cx,cy,r' (three numbers), got {text!r}")
-    cx, cy, r = (Range(-1e5, 1e5).parse(v, f"each of {option} cx,cy,r") for v in parts)
+    cx, cy, r = (PIXELS.parse(v, f"each of {option} cx,cy,r") for v in parts)
     if not r > 0:
         raise InputError(f"{option} radius must be > 0, got {r}")
     return cx, cy, r
@@ -96,43 +96,16 @@ def _sample_scene(env, image_path, circle):
     return Scene(env, px.normals, radiance, px.weights), circle, img.shape, (px.rows, px.cols)
 
 
-def write_figure(path, scenes, shapes, pixels, brdf) -> None:
-    """PNG (atomic): per scene, observed sphere, the fitted BRDF's rendering, and the relative residual."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from brdfrig.session.figures import save_png
-
-    fig, axes = plt.subplots(len(scenes), 3, figsize=(9, 3 * len(scenes)), squeeze=False)
-    for k, (scene, shape, (rows, cols)) in enumerate(zip(scenes, shapes, pixels)):
-        pred = brdf.predict(scene.env, scene.normals)
-        scale = np.percentile(scene.radiance, 99) or 1.0
-        for j, values in enumerate((scene.radiance, pred)):
-            img = np.zeros(shape[:2] + (3,))
-            img[rows, cols] = np.broadcast_to(values, (len(rows), 3)) if values.shape[1] == 1 else values[:, :3]
-            axes[k, j].imshow(np.clip(img / scale, 0, 1) ** (1 / 2.2))
-        res = np.zeros(shape[:2])
-        res[rows, cols] = np.linalg.norm(pred - scene.radiance, axis=1) / np.maximum(np.linalg.norm(scene.radiance, axis=1), 1e-12 * scale)
-        im = axes[k, 2].imshow(res, cmap="magma", vmin=0, vmax=max(float(np.percentile(res[rows, cols], 99)), 1e-6))
-        fig.colorbar(im, ax=axes[k, 2], fraction=0.046)
-        for j, title in enumerate(("observed", f"fit ({brdf.model})", "relative residual")):
-            axes[k, j].set_title(f"scene {k}: {title}", fontsize=9)
-            axes[k, j].axis("off")
-    fig.tight_layout()
-    save_png(fig, path)
-
-
 def run(args) -> int:
     from pathlib import Path
 
     from brdfrig.errors import InputError
-    from brdfrig.fit.brdffile import save_brdf
+    from brdfrig.fit.brdffile import jsonable, save_brdf
     from brdfrig.fit.fitter import fit_brdf
     from brdfrig.fit.report import format_report
     from brdfrig.lighting import read_latlong
+    from brdfrig.report.html import SampleReport, write_report
+    from brdfrig.report.figures import fit_figure, fit_figure_of, png_bytes
 
     if not args.scene and not args.probe_scene:
         raise InputError("give at least one --scene ENV IMAGE or --probe-scene PROBE IMAGE")
@@ -142,6 +115,9 @@ def run(args) -> int:
     if args.figure:
         check_output(args.figure, sources + [out], suffixes=(".png",), writes="a PNG figure",
                      no_clobber=args.no_clobber, option="--figure")
+    if args.report:
+        report_path = check_output(args.report, sources + [out], suffixes=(".html",), writes="an HTML report",
+                                   no_clobber=args.no_clobber, option="--report")
     circle = None if args.circle is None else parse_circle(args.circle)
     probe_circle = None if args.probe_circle is None else parse_circle(args.probe_circle, "--probe-circle")
     scenes, inputs, shapes, pixels = [], [], [], []
@@ -166,7 +142,13 @@ def run(args) -> int:
     save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]},
               overwrite=not args.no_clobber)
     print(f"wrote {out}")
+    title = f"{Path(inputs[0]['image']).stem}: {result.brdf.model} fit, lmax {args.lmax}, {len(scenes)} scene(s)"
     if args.figure:
-        write_figure(args.figure, scenes, shapes, pixels, result.brdf)
+        fit_figure(args.figure, scenes, pixels, result.brdf, title=title)
         print(f"wrote {args.figure}")
+    if args.report:
+        fig = png_bytes(fit_figure_of(scenes, pixels, result.brdf, title=title), dpi=90)
+        sample = SampleReport(Path(inputs[0]["image"]).stem, result.brdf, jsonable(rep.to_dict()), fit_png=fig)
+        write_report(report_path, f"brdfrig fit: {out.name}", [sample], notes=" ".join(sys.argv[1:]))
+        print(f"wrote {report_path}")
     return 0

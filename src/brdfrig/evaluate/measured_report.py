@@ -154,7 +154,7 @@ def plot_errors(result: MeasuredResult, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from brdfrig.session.figures import save_png
+    from brdfrig.report.figures import save_png
 
     groups = _groups(result)
     fig, axes = plt.subplots(len(groups), 1, figsize=(max(8.0, 0.22 * len(result.materials) + 3), 3.6 * len(groups)),
@@ -192,7 +192,7 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from brdfrig.session.figures import save_png
+    from brdfrig.report.figures import save_png
 
     scenes, noise = result.scene_counts[0], result.noises[0]
     cases = sorted((c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise),

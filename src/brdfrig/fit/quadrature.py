@@ -120,14 +120,13 @@ def lobe_quadrature(env: Environment, cone_deg=DEFAULT_CONE_DEG, subdiv=DEFAULT_
         wrad = np.ascontiguousarray(np.asarray(env.radiance, dtype=np.float64)[keep] * omega[keep, None])
         c = wrad.shape[1]
         return LobeQuadrature(dirs, wrad, dirs, np.zeros((0, 0, c)), np.eye(3), cos_cones[:0], subdivs[:0])
-    from brdfrig.hdr.envmap import latlong_directions  # same cell centres and solid angles as the Environment
-
     image = np.ascontiguousarray(np.asarray(env.latlong.image, dtype=np.float64))
     rot = np.ascontiguousarray(np.asarray(env.latlong.rotation, dtype=np.float64))
-    h, w, c = image.shape
-    map_dirs, omega = latlong_directions(h, w)
-    map_dirs = np.ascontiguousarray(map_dirs.reshape(-1, 3))
-    dirs = np.ascontiguousarray(map_dirs @ rot.T)
+    c = image.shape[2]
+    # the Environment's samples are the map's cell centres (row-major) turned by the rotation, with exact solid angles
+    dirs = np.ascontiguousarray(np.asarray(env.dirs, dtype=np.float64))
+    map_dirs = np.ascontiguousarray(dirs @ rot)
+    omega = np.asarray(env.solid_angle, dtype=np.float64)
     wrad = np.ascontiguousarray(image.reshape(-1, c) * omega.reshape(-1, 1))
     return LobeQuadrature(dirs, wrad, map_dirs, image, rot, cos_cones, subdivs)
 

@@ -106,7 +106,7 @@ def _draw(ax, x, y, style, label):
 
 def plot_brdfs(brdfs: dict, path, *, title: str = "") -> Path:
     """Write :func:`brdf_figure` of ``brdfs`` as a PNG, atomically."""
-    from brdfrig.session.figures import save_png
+    from brdfrig.report.figures import save_png
 
     return save_png(brdf_figure(brdfs, title=title), path)
 

@@ -17,7 +17,7 @@ Stages (each a function, so tests and the demo can run them separately):
    exposure get weight 0.
 5. :func:`run_pipeline` - fit each sample with ``brdfrig.fit.fitter.fit_brdf``, save the
    BRDF (``brdfrig.fit.brdffile.save_brdf``), a figure like the seed's figure 6
-   (``brdfrig.session.figures``) and ``stats.json`` in a fresh ``results/fit-NNN``.
+   (``brdfrig.report.figures``) and ``stats.json`` in a fresh ``results/fit-NNN``.
 """
 
 from __future__ import annotations
@@ -243,7 +243,7 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     """
     from tqdm import tqdm
 
-    from brdfrig.session.figures import fit_figure
+    from brdfrig.report.figures import fit_figure
     from brdfrig.fit.brdffile import save_brdf
     from brdfrig.fit.fitter import fit_brdf
 
@@ -288,6 +288,13 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
              f"(relative RMS over {len(scenes)} scene(s)) -> {brdf_path}")
         for warning in report.warnings:
             echo(f"  {name}: warning: {warning}")
+    if figures:
+        from brdfrig.report.html import SampleReport, write_report
+
+        write_report(results_dir / "report.html", f"brdfrig session {config.name}: {results_dir.name}",
+                     [SampleReport(s.name, s.brdf, stats_all["samples"][s.name]["report"], s.figure_path.read_bytes())
+                      for s in result.samples], notes=str(store.root))
+        stats_all["report"] = "report.html"
     atomic_write_bytes(results_dir / "stats.json", json.dumps(jsonable(stats_all), indent=1).encode())
     result.results_dir = results_dir = store.commit_results(results_dir)
     for sample in result.samples:

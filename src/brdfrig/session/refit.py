@@ -68,8 +68,7 @@ def _summary(session_dir: Path, results_dir: Path, seconds: float, reused: bool)
         report = s.get("report", {})
         samples.append({"sample": name, "model": s["model"], "requested_model": stats["fit"].get("model"),
                         "image_error": s.get("self_relative_rms_mean"),
-                        "relighting_estimate": (report.get("relighting_estimate") or {}).get("value")
-                        if isinstance(report.get("relighting_estimate"), dict) else report.get("relighting_estimate"),
+                        "relighting_estimate": (report.get("relight") or {}).get("value"),
                         "seconds": report.get("seconds"), "brdf_path": str(results_dir / s["brdf"]),
                         **{k: stats["fit"].get(k) for k in ("lmax", "pmax", "solver")}})
     return SessionRefit(str(session_dir), str(results_dir), samples, seconds, reused)

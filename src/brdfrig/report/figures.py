@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["fit_figure", "png_bytes", "save_png", "tone_map"]
+__all__ = ["fit_figure", "fit_figure_of", "png_bytes", "save_png", "tone_map"]
 
 
 def tone_map(rgb: np.ndarray, scale: float) -> np.ndarray:
@@ -31,16 +31,20 @@ def _disc_image(rows, cols, values, shape) -> np.ndarray:
 
 
 def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "", max_rows: int = 3) -> Path:
-    """Write the measured / rendered / difference / difference x4 figure as a PNG (atomically).
+    """Write :func:`fit_figure_of` as a PNG (atomically); returns the path."""
+    return save_png(fit_figure_of(scenes, pixels, brdf, title=title, max_rows=max_rows), path, dpi=90)
+
+
+def fit_figure_of(scenes: list, pixels, brdf, *, title: str = "", max_rows: int = 3):
+    """The measured / rendered / difference / difference x4 figure (a matplotlib figure).
 
     Parameters
     ----------
-    path : path-like
-        Output ``.png``.
     scenes : list of brdfrig.fit.scene.Scene
         The sample's scenes (lighting + observed pixels) as given to the fitter.
-    pixels : brdfrig.hdr.sphere.SpherePixels
-        Row/column of each of the scenes' pixels (same order as ``Scene.normals``).
+    pixels : SpherePixels-like or list of (rows, cols)
+        Row/column of the scenes' pixels (same order as ``Scene.normals``): one object with
+        ``rows``/``cols`` for all scenes (a session's sample), or one pair per scene.
     brdf : brdfrig.fit.brdf.FittedBRDF
         The fitted BRDF (rendered with ``brdf.predict``).
     title : str
@@ -53,20 +57,23 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows, cols = np.asarray(pixels.rows), np.asarray(pixels.cols)
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    shape = (int(r1 - r0), int(c1 - c0))
+    from brdfrig.fit.metrics import relative_rms
+
+    per_scene = pixels if isinstance(pixels, (list, tuple)) else [(pixels.rows, pixels.cols)] * len(scenes)
     shown = sorted(set(np.linspace(0, len(scenes) - 1, min(max_rows, len(scenes))).round().astype(int)))
     fig, axes = plt.subplots(len(shown), 4, figsize=(10, 2.6 * len(shown) + 0.6), squeeze=False)
     for ax_row, s in zip(axes, shown):
         scene = scenes[s]
+        rows, cols = (np.asarray(a) for a in per_scene[s])
+        r0, c0 = rows.min(), cols.min()
+        shape = (int(rows.max() + 1 - r0), int(cols.max() + 1 - c0))
+        predicted = brdf.predict(scene.env, scene.normals)
         measured = _disc_image(rows - r0, cols - c0, scene.radiance, shape)
-        rendered = _disc_image(rows - r0, cols - c0, brdf.predict(scene.env, scene.normals), shape)
+        rendered = _disc_image(rows - r0, cols - c0, predicted, shape)
         w = scene.weights > 0
         scale = 1.0 / max(float(np.percentile(scene.radiance[w], 99.5)), 1e-12) if w.any() else 1.0
         diff = np.abs(measured - rendered)
-        err = float(np.sqrt(np.sum((rendered[rows - r0, cols - c0][w] - scene.radiance[w]) ** 2)
-                            / np.sum(scene.radiance[w] ** 2))) if w.any() else float("nan")
+        err = relative_rms(predicted[w], scene.radiance[w]) if w.any() else float("nan")
         panels = [
             (measured, f"scene {s + 1}: measured"),
             (rendered, "rendered"),
@@ -80,7 +87,7 @@ def fit_figure(path: str | Path, scenes: list, pixels, brdf, *, title: str = "",
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    return save_png(fig, path, dpi=90)
+    return fig
 
 
 def png_bytes(fig, *, dpi: int = 100) -> bytes:
