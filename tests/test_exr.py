@@ -101,3 +101,24 @@ def test_failed_write_keeps_the_old_file(tmp_path):
         write_exr(target, np.zeros((4, 4, 3), np.float32), {"v": np.zeros((3, 3))})
     assert np.all(read_image(target) == 2.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr"]
+
+
+@pytest.mark.parametrize("bad, what", [(np.nan, "NaN/inf"), (np.inf, "NaN/inf"), (1e39, "NaN/inf"),
+                                       (-0.5, "negative radiance")])
+def test_writer_refuses_garbage_and_writes_nothing(tmp_path, bad, what):
+    """Non-finite (or beyond float32) and negative radiance never reach a file; the old file stays."""
+    from brdfrig.errors import InputError
+
+    target = tmp_path / "out.exr"
+    write_exr(target, np.full((4, 4, 3), 2.0, np.float32))
+    img = np.ones((4, 4, 3))
+    img[1, 2, 0] = bad
+    with pytest.raises(InputError, match=rf"out\.exr: refusing to write 1 {what} value\(s\) in the image .*row 1, col 2"):
+        write_exr(target, img)
+    var = np.ones((4, 4, 3))
+    var[3, 0, 1] = np.nan
+    if what == "NaN/inf":
+        with pytest.raises(InputError, match=r"NaN/inf value\(s\) in channel 'variance'"):
+            write_exr(target, np.ones((4, 4, 3)), {"variance": var})
+    assert np.all(read_image(target) == 2.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]
