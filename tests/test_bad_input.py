@@ -152,6 +152,13 @@ def _tiny_disk(ws: Path) -> None:
         pytest.skip(f"cannot mount a tmpfs: {r.stderr.decode().strip()}")
 
 
+def _read_only_dir(ws: Path) -> None:
+    (ws / "ro").mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=8k", "tmpfs", str(ws / "ro")], capture_output=True)
+    if r.returncode:
+        pytest.skip(f"cannot mount a tmpfs: {r.stderr.decode().strip()}")
+
+
 IS = r"is the input {}: brdfrig never overwrites its inputs; choose another output name"
 M = ("merge", "a.dng", "b.dng")
 ROWS: list[Row] = [
@@ -250,6 +257,8 @@ ROWS: list[Row] = [
         r"flat\.exr: no sphere found in the image \(.*\); give the sphere's circle with --circle cx,cy,r"),
     Row("missing-file", "an input that does not exist", ("probe", "nope.exr", "-o", "e.exr"),
         r"nope\.exr: no such image file"),
+    Row("read-only-dir", "output in a read-only directory", (*M, "-o", "ro/o.exr"),
+        r"ro/o\.exr: Read-only file system", setup=_read_only_dir, needs_root=True),
     Row("disk-full", "a full disk (8 KiB tmpfs)", (*M, "-o", "full/o.exr"),
         r"disk full while writing full/o\.exr; nothing already stored was changed", setup=_tiny_disk, needs_root=True),
 ]
@@ -268,7 +277,7 @@ def run_row(row: Row, base: Path, ws: Path) -> tuple[int, str, str, dict, dict]:
     try:
         if row.setup is not None:
             row.setup(ws)
-        mounted = os.path.ismount(ws / "full")
+        mounted = [d for d in (ws / "full", ws / "ro") if os.path.ismount(d)]
         before = _snapshot(ws)
         err = io.StringIO()
         cwd = os.getcwd()
@@ -280,8 +289,8 @@ def run_row(row: Row, base: Path, ws: Path) -> tuple[int, str, str, dict, dict]:
             os.chdir(cwd)
         after = _snapshot(ws)
     finally:
-        if mounted:
-            subprocess.run(["umount", str(ws / "full")], check=True)
+        for d in mounted:
+            subprocess.run(["umount", str(d)], check=True)
     text = err.getvalue().replace(f"{ws}/", "").replace(f"{ws.resolve()}/", "")  # paths as typed: relative
     lines = text.strip().splitlines()
     return code, lines[-1] if lines else "", text, before, after

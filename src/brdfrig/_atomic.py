@@ -60,6 +60,8 @@ def _create_temp(path: Path, suffix: str) -> Path:
             return tmp
         except FileExistsError:
             continue
+        except OSError as exc:  # unwritable or read-only directory, no inodes: name the target, not the temp
+            raise type(exc)(exc.errno, exc.strerror, str(path)) from None
 
 
 def _disk_is_full(directory: Path) -> bool:
