@@ -27,6 +27,7 @@ from typing import Callable
 
 import numpy as np
 
+from brdfrig.errors import ConfigError
 from brdfrig.session.config import SessionConfig
 
 __all__ = [
@@ -255,7 +256,7 @@ def auto_bracket(e_lo: float, e_hi: float, *, full_well_e: float, read_noise_e: 
     s_min = electrons_for_snr(target_snr, read_noise_e)
     s_max = SATURATION_HEADROOM * full_well_e
     if s_min >= s_max:
-        raise ValueError(
+        raise ConfigError(
             f"target SNR {target_snr:g} needs {s_min:.0f} electrons, more than the sensor's usable "
             f"{s_max:.0f} (full_well_e={full_well_e:g}): lower target_snr"
         )
