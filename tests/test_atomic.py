@@ -98,3 +98,14 @@ def test_openexr_on_a_full_disk_is_disk_full_not_runtime_error(tiny_disk):
     with pytest.raises(DiskFullError, match=r"disk full while writing .*big\.exr"):
         write_exr(tiny_disk / "big.exr", noise)
     assert not list(tiny_disk.iterdir())
+
+
+def test_tifffile_short_write_on_a_full_disk_is_disk_full(tiny_disk):
+    """tifffile (numpy tofile) reports "N requested and M written" without errno: still a full disk."""
+    from brdfrig.hdr.dng import write_dng
+
+    cfa = np.random.default_rng(1).integers(0, 16383, (256, 256), dtype=np.uint16)  # 128 KiB, uncompressed
+    with pytest.raises(DiskFullError, match=r"disk full while writing .*f\.dng"):
+        write_dng(tiny_disk / "f.dng", cfa, black_level=0, white_level=16383, exposure_time_s=0.01, f_number=8.0,
+                  iso=100)
+    assert not list(tiny_disk.iterdir())

@@ -16,7 +16,8 @@ not the ``0o600`` of :func:`tempfile.mkstemp`.
 stored session files).  A full disk raises
 :class:`brdfrig.errors.DiskFullError` naming the target, also when a library
 reports it as something other than ``OSError(ENOSPC)`` (OpenEXR raises
-``RuntimeError``): the free space is checked when a write fails.
+``RuntimeError``, numpy's ``tofile`` under tifffile an ``OSError`` without
+errno): the free space is checked when such a write fails.
 """
 
 from __future__ import annotations
@@ -106,8 +107,10 @@ def _temp(path: Path, overwrite: bool, suffix: str) -> Iterator[Path]:
         yield tmp
         _finish(tmp, path, overwrite)
     except BaseException as exc:
-        full = isinstance(exc, OSError) and exc.errno == errno.ENOSPC
-        full = full or (not isinstance(exc, (OSError, KeyboardInterrupt)) and _disk_is_full(path.parent))
+        if isinstance(exc, OSError) and exc.errno is not None:
+            full = exc.errno == errno.ENOSPC
+        else:  # libraries report a short write without errno (numpy: "N requested and M written") or otherwise
+            full = not isinstance(exc, KeyboardInterrupt) and _disk_is_full(path.parent)
         tmp.unlink(missing_ok=True)
         if full and not isinstance(exc, DiskFullError):
             raise DiskFullError(errno.ENOSPC, f"disk full while writing {path}; nothing already stored was changed"
