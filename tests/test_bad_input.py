@@ -431,6 +431,31 @@ def test_a_full_disk_during_refit_says_how_to_go_on(base, tmp_path, monkeypatch,
                                        f"free some space, then run `brdfrig refit {session}` again\n")
 
 
+def test_a_full_disk_during_capture_says_resume(tmp_path, capsys):
+    """A capture filling a 96 KiB tmpfs: one line naming the stored files and `brdfrig capture resume DIR`."""
+    if os.geteuid() != 0:
+        pytest.skip("needs root (mounts a tiny tmpfs)")
+    text = SIM_BENCH.read_text().replace("scenes = 12", "scenes = 1").replace("scale = 1.0", "scale = 0.25")
+    for old, new in (("115.0, 120.0, 90.0", "28.75, 30.0, 22.5"), ("320.0, 120.0, 90.0", "80.0, 30.0, 22.5"),
+                     ("525.0, 120.0, 90.0", "131.25, 30.0, 22.5")):  # the circles at scale 0.25
+        text = text.replace(old, new)
+    (tmp_path / "small.toml").write_text(text)
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=96k", "tmpfs", str(disk)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs")
+    try:
+        code = main(["capture", "run", str(tmp_path / "small.toml"), "--out", str(disk / "s"), "--no-progress",
+                     "--no-fit", "--yes"])
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2 and "Traceback" not in line
+    assert re.fullmatch(rf"brdfrig capture: error: disk full while writing {disk}/s/\S+; nothing already stored was "
+                        rf"changed; the \d+ files stored so far in {disk}/s are intact; free some space and run "
+                        rf"`brdfrig capture resume {disk}/s`", line), line
+
+
 if __name__ == "__main__":  # regenerate docs/BAD_INPUT.md
     import tempfile
 
