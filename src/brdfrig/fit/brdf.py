@@ -67,6 +67,9 @@ _PROVIDERS: dict[str, str] = {
     "oren_nayar": "brdfrig.fit.analytic",
     "blinn_phong": "brdfrig.fit.analytic",
     "ggx": "brdfrig.fit.analytic",
+    "dielectric": "brdfrig.fit.pbr",
+    "conductor": "brdfrig.fit.pbr",
+    "sheen": "brdfrig.fit.pbr",
     "tabulated": "brdfrig.fit.measured",
     "neural": "brdfrig.fit.measured",
 }
