@@ -24,12 +24,13 @@ ALLOWED: dict[str, set[str]] = {
     "hdr": BASE | {"hdr"},
     "fit": BASE | {"fit"},
     "lighting": BASE | {"hdr", "fit"},
+    "orientation": BASE | {"fit", "lighting"},  # is a lat-long map the right way round for its sphere image
     "session": BASE | {"rig", "hdr", "fit", "lighting", "report", "session"},
     "sim": BASE | {"rig", "hdr", "fit", "lighting", "report", "session", "sim"},
     "evaluate": BASE | {"hdr", "fit", "lighting", "report", "session", "sim", "evaluate"},
     "report": BASE | {"hdr", "fit", "lighting", "report"},
     "devices": BASE | {"rig", "sim", "session", "devices"},
-    "cli": BASE | {"rig", "hdr", "fit", "lighting", "session", "sim", "evaluate", "report", "devices", "cli"},
+    "cli": BASE | {"rig", "hdr", "fit", "lighting", "orientation", "session", "sim", "evaluate", "report", "devices", "cli"},
     "__main__": {"cli"},
     "__init__": set(),
 }

@@ -104,6 +104,7 @@ def run(args) -> int:
     from brdfrig.fit.fitter import fit_brdf
     from brdfrig.fit.report import format_report
     from brdfrig.lighting import read_latlong
+    from brdfrig.orientation import check_orientation
     from brdfrig.report.html import SampleReport, write_report
     from brdfrig.report.figures import fit_figure, fit_figure_of, png_bytes
 
@@ -128,12 +129,16 @@ def run(args) -> int:
             else:
                 env = _probe_environment(env_path, args.lmax, probe_circle)
             scene, used, shape, px = _sample_scene(env, image_path, circle)
+            check = check_orientation(scene)  # a mirrored or turned map fits, silently worse: say so
+            if check is not None and check.warning(env_path):
+                print(f"brdfrig fit: warning: {check.warning(env_path)}", file=sys.stderr)
             scenes.append(scene)
             shapes.append(shape)
             pixels.append(px)
             inputs.append({"lighting": str(env_path), "lighting_kind": kind, "image": str(image_path), "circle": list(used)})
 
-    result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress)
+    result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress,
+                      estimate=True)
     rep = result.report
     print(rep.identifiability_summary)
     print("\n".join(format_report(rep)))
