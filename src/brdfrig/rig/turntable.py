@@ -109,10 +109,10 @@ class GrblTurntable:
     move_margin_s : float
         Added to twice the move's nominal duration (distance / ``$110``) to give its deadline.
     stall_timeout_s : float
-        A move whose reported position does not change for this long has stalled.  Counted in
-        polls when ``poll_interval_s`` > 0 (``ceil(stall_timeout_s / poll_interval_s)`` reports
-        in a row, each at least ``poll_interval_s`` after the last, hence at least this long),
-        so that the exchange does not depend on how loaded the computer is.
+        A move whose reported position does not change for this long has stalled.  This and
+        the move deadline are counted in polls when ``poll_interval_s`` > 0 (each poll pauses
+        that long, so at least this much time has passed), so that the exchange does not
+        depend on how loaded the computer is.
     poll_interval_s : float
         Pause between status reports while waiting for a move.
     retries : int
@@ -263,9 +263,7 @@ class GrblTurntable:
                 self._forget()
                 for attempt in range(self.retries + 1):
                     why = self._homing_cycle()
-                    if why is None and self._confirm_idle_at(
-                        0.0, time.monotonic() + self.reply_timeout_s * (self.retries + 1)
-                    ):
+                    if why is None and self._confirm_idle_at(0.0):
                         break
                     why = why or "no two status reports Idle at 0 after the cycle"
                     self._note("turntable_home_retry", attempt=attempt + 1, reason=why)
@@ -407,14 +405,17 @@ class GrblTurntable:
         answers one queued during the cycle with state ``Home`` just before the
         ``ok``).  The cycle counts only if a ``Home`` report was seen and the
         cycle then ended: its ``ok``, or a report ``Idle`` after the ``Home``
-        one (the ``ok`` was lost).  Raises ``DeviceRefused`` on a homing alarm
-        or a refusal, ``DeviceTimeout`` when a seen cycle outlasts ``homing_timeout_s``.
+        one (the ``ok`` was lost).  Two reports in a row in another state
+        before any ``Home`` one mean no cycle started (GRBL defers reports
+        during a cycle; the first may predate the line).  Raises
+        ``DeviceRefused`` on a homing alarm or a refusal, ``DeviceTimeout``
+        when a seen cycle outlasts ``homing_timeout_s``.
         """
         self.link.write_line("$H")
         now = time.monotonic()
         deadline, next_poll, asked = now + self.homing_timeout_s, now, None
         saw_home = unlocked = ended = False
-        why = None
+        why, other_reports = None, 0
         while not ended and why is None:
             now = time.monotonic()
             if now > deadline:
@@ -437,6 +438,9 @@ class GrblTurntable:
                 asked = None
                 saw_home = saw_home or reply.status.state == "Home"
                 ended = saw_home and reply.status.state == "Idle"
+                other_reports = 0 if saw_home else other_reports + 1
+                if other_reports >= 2:
+                    why = f"no homing cycle started (status {reply.status.state} twice after $H)"
             elif reply.kind == "ok":
                 ended = True
             elif reply.kind == "error" and reply.code in _RETRYABLE_ERRORS:
@@ -544,29 +548,30 @@ class GrblTurntable:
         command = f"G90 G0 X{target:.6f}"
         distance = abs(target - start) if start is not None else 360.0
         allowed = 2.0 * distance / self.rate_deg_s + self.move_margin_s
-        deadline = time.monotonic() + allowed
+        t0 = time.monotonic()
         self._last_alarm = None
         _, clean = self._command(command)
-        last_pos, last_change, still = None, time.monotonic(), 0
+        last_pos, last_change, still, polls = None, time.monotonic(), 0, 0
         while True:
             now = time.monotonic()
-            if now > deadline:
+            if self._waited(polls, now - t0, allowed):
                 raise DeviceTimeout(
                     f"turntable did not reach {target:.4f} deg within {allowed:.2f} s (last reported at {last_pos} deg)"
                 )
             status = self._status()
+            polls += 1
             if status.state == "Alarm":
                 raise self._alarm_error(f"moving to {target:.4f} deg")
             if status.state == "Idle":
                 if abs(status.mpos - target) > self._tolerance:
                     return False, status.mpos, clean
-                if self._confirm_idle_at(target, deadline):
+                if self._confirm_idle_at(target):
                     return True, target, clean
                 continue
             if status.state in ("Run", "Jog", "Home"):
                 if status.mpos != last_pos:
                     last_pos, last_change, still = status.mpos, now, 0
-                elif self._stalled(still := still + 1, now - last_change):
+                elif self._waited(still := still + 1, now - last_change, self.stall_timeout_s):
                     raise DeviceTimeout(
                         f"turntable stalled at {status.mpos:.4f} deg while moving to {target:.4f} deg "
                         f"(no progress for {self.stall_timeout_s:g} s)"
@@ -576,20 +581,23 @@ class GrblTurntable:
             if self.poll_interval_s:
                 time.sleep(self.poll_interval_s)
 
-    def _stalled(self, unchanged_polls: int, unchanged_s: float) -> bool:
-        """No progress for ``stall_timeout_s``: counted in polls (see the class docstring), else in seconds."""
-        if self.poll_interval_s > 0:
-            return unchanged_polls * self.poll_interval_s >= self.stall_timeout_s
-        return unchanged_s > self.stall_timeout_s
+    def _waited(self, polls: int, seconds: float, limit_s: float) -> bool:
+        """Has a wait of ``limit_s`` run out?  Counted in polls of ``poll_interval_s`` when that is > 0.
 
-    def _confirm_idle_at(self, target: float, deadline: float) -> bool:
+        Each poll pauses ``poll_interval_s``, so ``polls * poll_interval_s`` never
+        exceeds the wall time waited; counting polls makes the exchange the same
+        however loaded the computer is.  Without a pause, wall time decides.
+        """
+        if self.poll_interval_s > 0:
+            return polls * self.poll_interval_s >= limit_s
+        return seconds > limit_s
+
+    def _confirm_idle_at(self, target: float) -> bool:
         """A second status report must also say Idle at ``target``: one report can be a garbled fluke."""
-        while time.monotonic() <= deadline:
-            status = self._status()
-            if status.state == "Alarm":
-                raise self._alarm_error(f"confirming the position {target:.4f} deg")
-            return status.state == "Idle" and abs(status.mpos - target) <= self._tolerance
-        raise DeviceTimeout(f"could not confirm the turntable at {target:.4f} deg in time")
+        status = self._status()
+        if status.state == "Alarm":
+            raise self._alarm_error(f"confirming the position {target:.4f} deg")
+        return status.state == "Idle" and abs(status.mpos - target) <= self._tolerance
 
     def _halt(self) -> None:
         """Feed hold, wait for the hold to complete, soft reset.
@@ -600,17 +608,17 @@ class GrblTurntable:
         self._position = None
         self._loaded_positive = False
         self.link.write(gp.FEED_HOLD)
-        deadline = time.monotonic() + self.stall_timeout_s
-        previous = None
-        while time.monotonic() < deadline:  # decelerating; a hung controller never leaves Run
+        previous, polls, t0 = None, 0, time.monotonic()
+        while not self._waited(polls, time.monotonic() - t0, self.stall_timeout_s):  # a hung controller stays in Run
             try:
                 status = self._status()
             except DeviceTimeout:  # replies lost: the reset below stops the table anyway
                 break
             if status.state != "Run" or status.mpos == previous:
                 break
-            previous = status.mpos
-            time.sleep(min(self.poll_interval_s, 0.01))
+            previous, polls = status.mpos, polls + 1
+            if self.poll_interval_s:
+                time.sleep(self.poll_interval_s)
         self._soft_reset()
         status = self._status()
         if status.state == "Alarm":
@@ -618,7 +626,7 @@ class GrblTurntable:
         elif status.state != "Idle":
             raise DeviceRefused(f"controller is in state {status.state!r} after a stop")
         elif self._homed and self.backlash_deg == 0:  # with play, the table is only known within the play
-            if self._confirm_idle_at(status.mpos, time.monotonic() + self.reply_timeout_s * (self.retries + 1)):
+            if self._confirm_idle_at(status.mpos):
                 self._position = status.mpos
 
     def _halt_quietly(self) -> None:

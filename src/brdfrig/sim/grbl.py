@@ -487,12 +487,13 @@ class GrblSimulator:
             elif ch == gp.CYCLE_START:
                 self._cycle_start()
             elif ch in (b"\n", b"\r"):
-                # like GRBL, every line end (\r or \n) ends a line, and an empty line is answered "ok"
+                # like GRBL, every line end (\r or \n) ends a line, and an empty line is answered "ok";
+                # it runs before any byte after it (so replies depend on the byte order, not on the chunking)
                 self._pending_lines.append(self._line_buf.decode("ascii", errors="replace"))
                 self._line_buf.clear()
+                self._run_pending_lines()
             else:
                 self._line_buf += ch
-        self._run_pending_lines()
 
     def _new_epoch(self) -> None:
         self._epoch += 1

@@ -22,7 +22,7 @@ from brdfrig.rig.errors import RigError
 from brdfrig.rig.turntable import GrblTurntable
 from brdfrig.sim.grbl import FaultRates, GrblSimulator
 
-__all__ = ["SOAK_RATES", "SOAK_DRIVER_TIMING", "SoakResult", "fault_soak"]
+__all__ = ["SOAK_RATES", "SOAK_DRIVER_TIMING", "REPLAY_DRIVER_TIMING", "SoakResult", "fault_soak"]
 
 #: Fault probabilities of the soak: every kind the simulator knows, often.
 SOAK_RATES = FaultRates(drop=0.06, garble=0.06, stall=0.1, slow=0.1, disconnect=0.06, alarm=0.1)
@@ -31,6 +31,12 @@ SOAK_RATES = FaultRates(drop=0.06, garble=0.06, stall=0.1, slow=0.1, disconnect=
 SOAK_DRIVER_TIMING = dict(poll_interval_s=0.001, reply_timeout_s=0.015, stall_timeout_s=0.015, move_margin_s=0.1,
                           resync_quiet_s=0.005, reconnect_delay_s=0.02, reconnect_attempts=5,
                           connect_timeout_s=0.1, homing_timeout_s=0.1)
+
+#: Generous driver timing for replaying a seed exactly on a loaded machine (a reply later than
+#: the short timeouts above is taken for lost, which changes the exchange); about 10x slower.
+REPLAY_DRIVER_TIMING = {**SOAK_DRIVER_TIMING, "reply_timeout_s": 0.25, "resync_quiet_s": 0.05,
+                        "stall_timeout_s": 0.05, "connect_timeout_s": 1.0, "homing_timeout_s": 1.0,
+                        "move_margin_s": 1.0}
 
 
 @dataclass
@@ -57,11 +63,13 @@ class SoakResult:
 
 
 def fault_soak(n_faults: int, seed: int, *, steps_per_degree: float = 80.0, backlash_deg: float = 0.5,
-               rates: FaultRates = SOAK_RATES, max_homing_attempts: int = 30) -> SoakResult:
+               rates: FaultRates = SOAK_RATES, max_homing_attempts: int = 30,
+               timing: dict = SOAK_DRIVER_TIMING) -> SoakResult:
     """Run random moves until the simulator has injected ``n_faults`` faults; see the module docstring.
 
-    ``seed`` fixes the targets and the simulator's fault schedule.  Raises
-    ``RuntimeError`` if the table cannot be homed again in ``max_homing_attempts``.
+    ``seed`` fixes the targets and the simulator's fault schedule; ``timing`` is
+    the driver's (``REPLAY_DRIVER_TIMING`` to replay a seed exactly under load).
+    Raises ``RuntimeError`` if the table cannot be homed again in ``max_homing_attempts``.
     """
     result = SoakResult(seed)
     step = 1.0 / steps_per_degree
@@ -78,7 +86,7 @@ def fault_soak(n_faults: int, seed: int, *, steps_per_degree: float = 80.0, back
     with GrblSimulator(steps_per_degree=steps_per_degree, backlash_deg=backlash_deg, max_rate_deg_s=1e5,
                        homing_time_s=0.002, reconnect_delay_s=0.01, seed=seed, tick_s=0.001) as sim:
         table = GrblTurntable(sim.port, 115200, steps_per_degree, backlash_deg, journal=journal,
-                              **SOAK_DRIVER_TIMING)
+                              **timing)
         table.connect()
         table.home()
         sim.set_faults(rates)
