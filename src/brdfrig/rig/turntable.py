@@ -23,6 +23,7 @@ The driver speaks the dialect documented in :mod:`brdfrig.rig.grbl_protocol` ove
   while it waits for the cycle's ``ok``) followed by two reports ``Idle`` at 0.
   A garbled ``$H`` (e.g. ``$X``, which unlocks a freshly powered board at
   whatever angle it stands) produces no ``Home`` report and is homed again;
+  the absence of a line (``[MSG:Caution: Unlocked]``) is never evidence;
 * every retry, resynchronisation and re-approach is reported to ``journal``
   (the session runner writes them to the session journal);
 * the port is opened exclusively: a second process gets
@@ -263,7 +264,7 @@ class GrblTurntable:
                 self._forget()
                 for attempt in range(self.retries + 1):
                     why = self._homing_cycle()
-                    if why is None and self._confirm_idle_at(0.0):
+                    if why is None and self._confirm_idle_at(0.0) and self._confirm_idle_at(0.0):
                         break
                     why = why or "no two status reports Idle at 0 after the cycle"
                     self._note("turntable_home_retry", attempt=attempt + 1, reason=why)
