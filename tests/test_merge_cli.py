@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from brdfrig.cli.main import main
@@ -114,3 +116,21 @@ def test_merge_nonlinear_tiff_bracket(tmp_path):
     ratio = rgb[ok] / truth[ok]
     # Linear up to the response's overall scale: the ratio is constant over 3 decades to 2%.
     assert np.percentile(np.abs(ratio / np.median(ratio) - 1), 95) < 0.02
+
+
+def test_align_borders_without_data_are_written_finite_and_flagged(tmp_path, capsys):
+    """Pixels no aligned frame covers hold no data (NaN inside the merge): written as 0 with flags 2, never NaN."""
+    rng = np.random.default_rng(3)
+    files = []
+    for k, (t, dx) in enumerate(zip(TIMES, [0, 2, -3, 1])):  # the camera moved between frames
+        (tmp_path / f"s{k}").mkdir()
+        files += write_bracket(tmp_path / f"s{k}", np.roll(scene(), dx, axis=1), [t], rng)
+    out = tmp_path / "aligned.exr"
+    assert main(["merge", *map(str, files), "--align", "-o", str(out)]) == 0
+    rgb, extra, _ = read_exr(out)
+    assert np.isfinite(rgb).all() and np.isfinite(extra["variance"]).all() and (rgb >= 0).all()
+    note = re.search(r"note: (\d+) pixel-channel\(s\) at the frame borders have no data", capsys.readouterr().err)
+    zero = rgb == 0  # the scene has no black pixel: a 0 is a pixel without data
+    assert note is not None and int(note.group(1)) == int(zero.sum()) > 0
+    assert np.all(extra["flags"][zero.any(axis=2)] == 2)
+    assert np.all(extra["variance"][zero] == 0)

@@ -10,8 +10,8 @@ from the bracket itself (Debevec & Malik), unless ``--response linear``.
 The output EXR holds the radiance as R,G,B (frame units per second), its
 variance as ``variance.R/G/B``, the per-pixel merge flags as ``flags``
 (0 ok, 1 black in every frame, 2 saturated, or within ``--clip-radius`` of a
-clipped pixel, in every frame) and the exposure provenance as ``brdfrig:``
-attributes.
+clipped pixel, in every frame, or with no data after ``--align``: radiance and
+variance 0 there) and the exposure provenance as ``brdfrig:`` attributes.
 """
 
 from __future__ import annotations
@@ -145,6 +145,12 @@ def run(args) -> int:
         )
     for w in caught:
         print(f"brdfrig merge: warning: {w.message}", file=sys.stderr)
+    no_data = ~np.isfinite(res.radiance)  # pixels shifted in from outside every aligned frame (flag 2)
+    if no_data.any():
+        res.radiance[no_data] = 0.0
+        res.variance[no_data] = 0.0
+        print(f"brdfrig merge: note: {int(no_data.sum())} pixel-channel(s) at the frame borders have no data after "
+              "alignment: written as 0 with flags = 2", file=sys.stderr)
     attributes = {
         "kind": "merged_bracket",
         "source_files": [f.name for f in files],
