@@ -153,7 +153,8 @@ def check_output_values(image: np.ndarray, path, what: str, *, nonnegative: bool
         neg = image < 0
         idx = np.argwhere(neg)[0]
         raise InputError(f"{path}: refusing to write {int(neg.sum())} negative radiance value(s) in {what} "
-                         f"(min {float(image.min()):.3g}, first at row {idx[0]}, col {idx[1]})")
+                         f"(min {float(image.min()):.3g}, first at row {idx[0]}, col {idx[1]}): do the inputs have "
+                         "negative pixels?")
 
 
 def _check_finite(image: np.ndarray, path: Path, what: str) -> None:
