@@ -24,8 +24,9 @@ SAFE = {**FAST, "reply_timeout_s": 1.0, "stall_timeout_s": 1.0, "move_margin_s":
 
 
 def fast_sim(**kw) -> GrblSimulator:
-    opts = dict(steps_per_degree=SPD, backlash_deg=0.5, max_rate_deg_s=1e5, homing_time_s=0.02,
-                reconnect_delay_s=0.01)
+    """A fast simulator; homing lasts 2 status polls on the virtual clock (``tick_s``), 20 ms in real time."""
+    opts = dict(steps_per_degree=SPD, backlash_deg=0.5, max_rate_deg_s=1e5,
+                homing_time_s=0.002 if kw.get("tick_s") else 0.02, reconnect_delay_s=0.01)
     opts.update(kw)
     return GrblSimulator(**opts)
 
