@@ -23,7 +23,7 @@ Pipeline (``docs/MATH.md``):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -67,17 +67,20 @@ REFERENCES = tuple(m for m in RICHNESS if REGISTRY[m].kind == "single" or m in (
 
 @dataclass
 class FitResult:
-    """A fitted BRDF and its report."""
+    """A fitted BRDF, its report, and every candidate fitted on all the pixels (``brdfs``, by model name)."""
 
     brdf: FittedBRDF
     report: FitReport
+    brdfs: dict[str, FittedBRDF] = field(default_factory=dict)
 
 
 class _Candidates:
     """Fits candidates on one :class:`~brdfrig.fit.stream.FitData`, one pixel stream per model spec."""
 
-    def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str) -> None:
+    def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str, required: str | None = None) -> None:
+        """``required``: the model asked for (its fit errors propagate; another candidate's failure only skips it)."""
         self.data, self.ident, self.lmax, self.pmax, self.solver = data, ident, lmax, pmax, solver
+        self.required = required
         self.bands = tuple(ident.observable_bands)
         self.streams: dict[ModelSpec, Stream] = {}
         self.brdfs: dict[str, FittedBRDF] = {}
@@ -89,7 +92,12 @@ class _Candidates:
             return self.entries[name]
         kind = REGISTRY[name].kind
         if kind == "single":
-            cand = self._single(name)
+            try:
+                cand = self._single(name)
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+                if name == self.required:
+                    raise
+                cand = Candidate(name, skipped=f"fit failed: {exc}")
         elif name in ("diffuse", "lobe"):
             cand = self._linear(name, name, self.lmax, self.solver)
         elif full_lmax < 0 or (auto and full_lmax < 1):
@@ -150,7 +158,7 @@ def fit_brdf(
     max_theta_deg: float = DEFAULT_MAX_THETA_DEG,
     tol: float = STOP_TOL,
     seed: int = 0,
-    estimate: bool = True,
+    estimate: bool | None = None,
 ) -> FitResult:
     """Fit a BRDF to one or more scenes.
 
@@ -175,10 +183,10 @@ def fit_brdf(
         Stopping rule tolerance (relative change of the held-out prediction).
     seed : int
         Seed of the pixel order and the held-out draw.
-    estimate : bool
-        Estimate the relighting error (:mod:`brdfrig.fit.relight`).  A requested model is then also
-        compared with :data:`REFERENCES` (one scene) or refitted per fold (several scenes); ``auto``
-        always estimates (its choice depends on it).
+    estimate : bool or None
+        Estimate the relighting error (:mod:`brdfrig.fit.relight`; None: only for ``auto``, whose
+        choice depends on it).  A requested model is then also compared with :data:`REFERENCES` (one
+        scene) or refitted per fold (several scenes), at the cost of those fits.
 
     Returns
     -------
@@ -195,7 +203,7 @@ def fit_brdf(
     # The blocks are small (a few thousand x a few hundred): multithreaded BLAS only
     # adds contention (measured 15-30x slower QR on a loaded 2-core machine).
     with threadpool_limits(limits=1, user_api="blas"):
-        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, estimate or model == "auto")
+        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, bool(estimate) or model == "auto")
 
 
 def _wanted(model: str, n_scenes: int, estimate: bool) -> tuple[str, ...]:
@@ -229,7 +237,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         raise InputError("the lighting has no energy in any band: nothing can be measured")
 
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
-    fitter = _Candidates(data, ident, lmax, pmax, solver)
+    fitter = _Candidates(data, ident, lmax, pmax, solver, None if model == "auto" else model)
     for name in wanted:
         fitter.fit(name, full_lmax, model == "auto")
     cands = fitter.entries
@@ -258,16 +266,16 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         warnings=fit_warnings(cands[chosen], ident, counts),
     )
     report.seconds, report.stage_seconds = time.perf_counter() - t0, clock.report()
-    return FitResult(brdf=fitter.brdfs[chosen], report=report)
+    return FitResult(brdf=fitter.brdfs[chosen], report=report, brdfs=dict(fitter.brdfs))
 
 
 def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -> None:
     """Set ``relight`` (and, from the other lightings' predictions, ``radiance_check``) of the fitted candidates."""
     cands = fitter.entries
-    fitted = [m for m in cands if m in fitter.brdfs and cands[m].radiance_check is None]
+    fitted = [m for m in cands if m in fitter.brdfs]
     with data.clock("other"):
         if len(data.scenes) >= 2:
-            names = [m for m in fitted if model != "auto" or cands[m].determined]
+            names = [m for m in fitted if model == m or (cands[m].determined and cands[m].radiance_check is None)]
             estimates = loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, model == "auto"))
         else:
             envs = other_lightings(data.scenes[0].env)
@@ -275,7 +283,7 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
             preds = {}
             for m in fitted:
                 pred = predict_under(fitter.brdfs[m], envs, normals)
-                cands[m].radiance_check = radiance_problem(pred, "other lightings")
+                cands[m].radiance_check = cands[m].radiance_check or radiance_problem(pred, "other lightings")
                 if np.all(np.isfinite(pred)):
                     preds[m] = pred
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})

@@ -19,16 +19,18 @@ from dataclasses import dataclass
 from typing import Callable
 
 
-__all__ = ["ModelInfo", "REGISTRY", "RICHNESS", "MODELS", "SOLVERS", "LINEAR_SH", "PRIOR_OF", "single_fit"]
+__all__ = ["ModelInfo", "REGISTRY", "RICHNESS", "MODELS", "SOLVERS", "LINEAR_SH", "PARAMETRIC", "PRIOR_OF", "single_fit"]
 
 
 @dataclass(frozen=True)
 class ModelInfo:
-    """A fittable model: its name, kind (module docstring) and, for ``single`` models, ``module:function``."""
+    """A fittable model: its name, kind (module docstring), for ``single`` models ``module:function``, and
+    whether it is a parametric family of a few parameters per channel (``parametric``)."""
 
     name: str
     kind: str
     fit: str | None = None
+    parametric: bool = False
 
 
 SOLVERS: tuple[str, ...] = ("paper", "joint", "tikhonov")
@@ -37,7 +39,11 @@ SOLVERS: tuple[str, ...] = ("paper", "joint", "tikhonov")
 REGISTRY: dict[str, ModelInfo] = {m.name: m for m in (
     ModelInfo("diffuse", "linear"),
     ModelInfo("lobe", "linear"),
-    ModelInfo("microfacet", "single", "brdfrig.fit.microfacet:fit_microfacet"),
+    ModelInfo("dielectric", "single", "brdfrig.fit.pbr_fit:fit_dielectric", parametric=True),
+    ModelInfo("conductor", "single", "brdfrig.fit.pbr_fit:fit_conductor", parametric=True),
+    ModelInfo("sheen", "single", "brdfrig.fit.pbr_fit:fit_sheen", parametric=True),
+    ModelInfo("microfacet", "single", "brdfrig.fit.microfacet:fit_microfacet", parametric=True),
+    ModelInfo("bivariate", "single", "brdfrig.fit.bivariate:fit_bivariate"),
     ModelInfo("full", "linear"),
     ModelInfo("full+prior", "prior"),
 )}
@@ -49,6 +55,8 @@ MODELS: tuple[str, ...] = ("auto",) + RICHNESS
 """Values of ``fit_brdf(model=...)``, the ``--model`` option and the ``[fit] model`` key."""
 LINEAR_SH: tuple[str, ...] = tuple(m.name for m in REGISTRY.values() if m.kind == "linear")
 """The SH models solved by every solver in :data:`SOLVERS`."""
+PARAMETRIC: tuple[str, ...] = tuple(m.name for m in REGISTRY.values() if m.parametric)
+"""Parametric families (a few parameters per channel): the anchors of the relighting estimate."""
 PRIOR_OF = {"full+prior": "microfacet"}
 """The fit a ``prior`` model is regularised toward."""
 

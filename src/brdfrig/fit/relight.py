@@ -15,7 +15,11 @@ can reproduce its image to 0.1% and relight at 40%).  Two estimates look at othe
   non-negative least squares over all pairs (the "three-cornered hat" of clock comparison, Gray & Allan
   1974): a candidate far from every other is the wrong one.  It assumes the candidates' errors are
   independent, so it needs three or more candidates (two give each their distance, an upper bound for
-  the better one).  The estimate is at least the candidate's held-out error on its own lighting.
+  the better one).  When a parametric family (:data:`brdfrig.fit.registry.PARAMETRIC`, a few
+  parameters per channel) reproduces the held-out pixels as well as the most flexible candidate (within
+  :data:`ANCHOR_RTOL`), it is taken as the reference instead ("anchor": Occam's razor; the split would
+  spread the other candidates' shared error onto it): every candidate's estimate is then its distance
+  to the anchor.  The estimate is at least the candidate's held-out error on its own lighting.
 
 Candidates regularised toward another fit (``prior`` kind) are left out of the split (their errors are
 that fit's): their estimate is ``sqrt(e_prior^2 + d^2)``.
@@ -29,7 +33,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import nnls
 
-from brdfrig.fit.registry import PRIOR_OF
+from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.scene import Environment
 from brdfrig.fit.stream import FitData
@@ -41,6 +45,8 @@ OTHER_ROTATIONS = (("y", 90.0), ("y", 180.0), ("y", 270.0), ("x", 90.0), ("x", -
 """(axis, degrees) of the turned copies of the fit lighting the spread estimate predicts under."""
 ESTIMATE_PIXELS = 800
 """Sphere pixels (a seeded subsample of the usable ones) each candidate predicts per other lighting."""
+ANCHOR_RTOL = 1.2
+"""A parametric candidate whose held-out error is within this factor of the smallest one is the anchor."""
 LOSO_MAX_FOLDS = 3
 """Most folds of the leave-one-scene-out estimate (each fold refits every candidate)."""
 SPREAD = "rotated-lighting spread"
@@ -91,6 +97,17 @@ def _hat(d2: np.ndarray) -> np.ndarray:
     return x
 
 
+def _anchor(heldout: dict[str, float | None]) -> str | None:
+    """The parametric candidate that reproduces the held-out pixels within :data:`ANCHOR_RTOL` of the best
+    reproduction of any candidate (the smallest held-out error among such), or None."""
+    held = {m: v for m, v in heldout.items() if v is not None}
+    if not held:
+        return None
+    best = min(held.values())
+    near = [m for m in PARAMETRIC if m in held and held[m] <= ANCHOR_RTOL * best + 1e-12]
+    return min(near, key=held.get) if near else None
+
+
 def spread_estimates(preds: dict[str, np.ndarray], weights: np.ndarray, heldout: dict[str, float | None]) -> dict[str, RelightEstimate]:
     """Rotated-lighting spread estimate (module docstring) of every candidate in ``preds``.
 
@@ -101,20 +118,26 @@ def spread_estimates(preds: dict[str, np.ndarray], weights: np.ndarray, heldout:
     weights : (N,)
         Pixel weights.
     heldout : dict name -> float or None
-        Held-out error on the fit's own lighting (the estimate's floor).
+        Held-out error on the fit's own lighting (the estimate's floor; picks the anchor).
     """
-    independent = [m for m in preds if m not in PRIOR_OF]
     if not preds:
         return {}
     energy = np.median(np.stack([np.einsum("lnc,n->l", p**2, weights) for p in preds.values()]), axis=0)
     energy = np.maximum(energy, 1e-300)
+    independent = [m for m in preds if m not in PRIOR_OF]
+    anchor = _anchor({m: heldout.get(m) for m in independent})
     d2 = np.array([[_distance2(preds[a], preds[b], energy, weights) for b in independent] for a in independent])
     n = len(independent)
-    if n >= 3:
+    if anchor is not None:
+        k = independent.index(anchor)
+        x = {m: float(d2[i, k]) for i, m in enumerate(independent)}
+        how = (f"distance to the predictions of {anchor} (a parametric fit reproducing the held-out pixels "
+               f"within {ANCHOR_RTOL:g}x of the best of {n} candidates)")
+    elif n >= 3:
         x = dict(zip(independent, _hat(d2)))
         how = f"split of the pairwise distances of {n} candidates' predictions"
     elif n == 2:
-        x = dict.fromkeys(independent, d2[0, 1])
+        x = dict.fromkeys(independent, float(d2[0, 1]))
         how = "distance of the 2 candidates' predictions (an upper bound for the better one)"
     else:
         x = dict.fromkeys(independent, 0.0)

@@ -6,9 +6,10 @@
   other lightings) must be finite and non-negative (:func:`radiance_problem`).
 - Choice (:func:`choose`): ``auto`` keeps the determined candidates whose radiance check passed (and,
   when any is, the physically plausible ones: :func:`brdfrig.fit.models.plausibility`) and picks the one
-  with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`), the richest (order
-  :data:`brdfrig.fit.registry.RICHNESS`) within :data:`SELECT_RTOL` of it.  Without any estimate it falls
-  back to the held-out error of the same lighting, by the same rule.
+  with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`); of those within
+  :data:`SELECT_RTOL` of it, the one with the smallest held-out error.  Without any estimate it picks
+  the richest (order :data:`brdfrig.fit.registry.RICHNESS`) whose held-out error (same lighting) is
+  within :data:`SELECT_RTOL` of the best.
 """
 
 from __future__ import annotations
@@ -72,6 +73,13 @@ def _richest_within(names: list[str], score: dict[str, float]) -> tuple[str, flo
     return [m for m in names if score[m] <= best * (1 + SELECT_RTOL) + 1e-12][-1], best
 
 
+def _best_reproducing_within(names: list[str], score: dict[str, float], cands: dict[str, Candidate]) -> tuple[str, float]:
+    """Among the candidates within :data:`SELECT_RTOL` of the best score, the one with the smallest held-out error."""
+    best = min(score[m] for m in names)
+    near = [m for m in names if score[m] <= best * (1 + SELECT_RTOL) + 1e-12]
+    return min(near, key=lambda m: (cands[m].heldout_relative_rms is None, cands[m].heldout_relative_rms or 0.0)), best
+
+
 def choose(cands: dict[str, Candidate]) -> tuple[str, str, str]:
     """``auto``'s choice: ``(model, reason, criterion)`` (module docstring)."""
     ok = _admissible(cands)
@@ -80,7 +88,7 @@ def choose(cands: dict[str, Candidate]) -> tuple[str, str, str]:
     rated = [m for m in ok if cands[m].relight is not None and cands[m].relight.value is not None]
     if rated:
         score = {m: cands[m].relight.value for m in rated}
-        chosen, best = _richest_within(rated, score)
+        chosen, best = _best_reproducing_within(rated, score, cands)
         method = cands[chosen].relight.method
         return chosen, (f"smallest estimated relighting error ({method}): {score[chosen]:.4g}"
                         + ("" if score[chosen] == best else f", within {SELECT_RTOL:.0%} of the best {best:.4g}")), method

@@ -1,0 +1,136 @@
+"""Model selection that predicts relighting: leave-one-scene-out vs held-out pixels, the rotated-lighting
+spread estimate, and the fit report's round trip through the BRDF file.
+
+Oracles: the brute-force ground-truth renderer (relighting under pisa, a lighting no estimate sees) and
+predictions built with known, independent errors.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from brdfrig.evaluate.bench import rotate_environment
+from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar
+from brdfrig.fit.brdffile import jsonable, load_brdf, save_brdf
+from brdfrig.fit.fitter import fit_brdf
+from brdfrig.fit.relight import other_lightings, predict_under, spread_estimates
+from brdfrig.fit.report import Candidate, FitReport, RelightEstimate, format_report
+from brdfrig.fit.select import choose, radiance_problem
+from test_fit_scenes import GGX_MATERIAL, make_scenes, probes, relight_error, sphere  # noqa: F401
+
+
+def test_loso_picks_the_model_that_relights_where_heldout_pixels_pick_the_wrong_one(probes):
+    """Two scenes (grace, grace turned 90 degrees), GGX sphere, l = p = 3.  ``full`` reproduces held-out
+    pixels of the same lighting better than ``lobe`` (measured 0.026 vs 0.030) but relights under pisa at
+    123% against 2.6%; leave-one-scene-out sees it (measured 1460 vs 0.037)."""
+    fit_env, test_env = probes
+    normals, weights = sphere(32)
+    truth = GGX(**GGX_MATERIAL)
+    scenes = make_scenes(truth, [fit_env, rotate_environment(fit_env, math.radians(90))], normals, weights)
+    fits = {m: fit_brdf(scenes, model=m, lmax=3, pmax=3, progress=False, estimate=True) for m in ("lobe", "full")}
+    held = {m: r.report.chosen.heldout_relative_rms for m, r in fits.items()}
+    loso = {m: r.report.relight.value for m, r in fits.items()}
+    true = {m: relight_error(r.brdf, truth, test_env, normals) for m, r in fits.items()}
+    print(f"held-out {held}, leave-one-scene-out {loso}, relit under pisa {true}")
+    assert all(r.report.relight.method == "leave-one-scene-out" for r in fits.values())
+    assert held["full"] < held["lobe"]  # the same-lighting criterion prefers full ...
+    assert true["full"] > 10 * true["lobe"]  # ... which relights far worse
+    assert loso["full"] > 10 * loso["lobe"]  # the relighting criterion sees it
+    # the choice itself: both marked determined so that only the criterion decides
+    cands = {m: Candidate(m, heldout_relative_rms=held[m], determined=True, full_rank=True,
+                          plausibility={"plausible": True}, relight=fits[m].report.relight) for m in ("lobe", "full")}
+    assert choose(cands)[0] == "lobe"
+    for c in cands.values():
+        c.relight = None
+    assert choose(cands)[0] == "full"  # held-out fallback: the wrong model
+    # the estimate is a relighting error: within a factor 2 of pisa's for the model that relights
+    assert 0.5 <= loso["lobe"] / true["lobe"] <= 2.0
+
+
+def test_spread_split_recovers_independent_errors():
+    """Predictions = truth + independent errors of known size (2%, 4%, 8%, 20%): the pairwise split
+    recovers each within 15% (no truth given); a parametric candidate that reproduces the held-out
+    pixels best is the anchor and the others' estimates are their distances to it."""
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.5, 1.5, size=(5, 2000, 3))
+    weights = np.ones(2000)
+    scale = math.sqrt(float(np.mean(np.sum(truth**2, axis=(1, 2)))))
+    sizes = {"diffuse": 0.2, "lobe": 0.08, "bivariate": 0.04, "full": 0.02}
+    preds = {}
+    for m, e in sizes.items():
+        noise = rng.standard_normal(truth.shape)
+        preds[m] = truth + e * scale * noise / math.sqrt(float(np.mean(np.sum(noise**2, axis=(1, 2)))))
+    held = dict.fromkeys(sizes, 0.001)
+    est = spread_estimates(preds, weights, held)
+    for m, e in sizes.items():
+        print(f"{m}: true {e}, estimate {est[m].value:.4f}")
+        assert est[m].value == pytest.approx(e, rel=0.15), m
+    preds["microfacet"] = truth.copy()
+    anchored = spread_estimates(preds, weights, held | {"microfacet": 1e-4})
+    assert "microfacet" in anchored["lobe"].detail
+    assert anchored["microfacet"].value == pytest.approx(1e-4)
+    for m, e in sizes.items():
+        assert anchored[m].value == pytest.approx(e, rel=0.1), m
+
+
+def test_spread_estimate_within_factor_two_on_synthetic_materials(probes):
+    """Candidate BRDFs with errors of different kinds (a sharper lobe, no lobe, a rough base, a wrong base
+    colour) of a GGX sphere fitted under grace: the spread estimate, made without the truth, is within a
+    factor 2 of each one's true relighting error under the estimate's own other lightings (grace turned;
+    ground truth by brute-force quadrature; measured ratios 0.83-1.47).  Under pisa the true errors differ
+    from those by up to 3.2x (printed), which bounds how well any one estimate can predict one lighting.
+    The split assumes independent errors: a sharper and a broader lobe (opposite errors) are split
+    wrongly (measured 0.093 and 0.0 for true 0.058 and 0.07)."""
+    from brdfrig.fit.groundtruth import render_groundtruth
+
+    fit_env, test_env = probes
+    normals, weights = sphere(32)
+    truth = GGX(alpha=0.3, f0=0.04, diffuse=[0.5, 0.4, 0.3])
+    cands = {
+        "microfacet": GGX(alpha=0.2, f0=0.04, diffuse=[0.5, 0.4, 0.3]),
+        "diffuse": Lambertian([0.55, 0.45, 0.35]),
+        "bivariate": OrenNayar([0.45, 0.35, 0.25], sigma=0.5),
+        "lobe": GGX(alpha=0.3, f0=0.06, diffuse=[0.44, 0.42, 0.33]),
+    }
+    envs = other_lightings(fit_env)
+    preds = {m: predict_under(b, envs, normals) for m, b in cands.items()}
+    est = spread_estimates(preds, weights, dict.fromkeys(cands, None))
+    ref = np.stack([render_groundtruth(truth, normals, e) for e in envs])
+    energy = np.einsum("lnc,n->l", ref**2, weights)
+    for m, b in cands.items():
+        proxy = math.sqrt(float(np.mean(np.einsum("lnc,n->l", (preds[m] - ref) ** 2, weights) / energy)))
+        pisa = relight_error(b, truth, test_env, normals)
+        print(f"{m}: estimate {est[m].value:.4f}, true under the turned lightings {proxy:.4f}, under pisa {pisa:.4f}")
+        assert 0.5 <= est[m].value / proxy <= 2.0, m
+
+
+def test_radiance_check():
+    assert radiance_problem(np.ones((4, 3)), "x") is None
+    assert radiance_problem(np.array([[1.0, -1e-6, 1.0]]), "x") is None  # rounding below NEGATIVE_RTOL
+    assert "negative" in radiance_problem(np.array([[1.0, -0.1, 1.0]]), "other lightings")
+    assert "non-finite" in radiance_problem(np.array([[1.0, np.nan, 1.0]]), "x")
+
+
+def test_report_round_trip_through_brdf_file_and_json(probes, tmp_path):
+    fit_env, _ = probes
+    normals, weights = sphere(24)
+    scenes = make_scenes(Lambertian([0.6, 0.5, 0.3]), [fit_env], normals, weights)
+    res = fit_brdf(scenes, model="diffuse", lmax=3, progress=False)
+    rep = res.report
+    assert isinstance(rep, FitReport) and rep.relight.value is None  # requested model, estimate not asked for
+    rep.relight = rep.chosen.relight = RelightEstimate(0.0123, "rotated-lighting spread", "a test")
+    path = save_brdf(tmp_path / "d.brdf.json", res.brdf, rep)
+    _, stored = load_brdf(path)
+    back = FitReport.from_dict(stored)
+    assert back.to_dict() == json.loads(json.dumps(jsonable(rep)))
+    assert back.relight == rep.relight and back.chosen.system == rep.chosen.system
+    assert back.pixels == rep.pixels and back.candidates["diffuse"].system.rank == rep.chosen.system.rank
+    assert stored["relight"] == {"value": 0.0123, "method": "rotated-lighting spread", "detail": "a test"}
+    text = "\n".join(format_report(back))
+    assert "estimated relighting error under other lighting: 1.23%" in text
+    with pytest.raises(ValueError, match="not a fit report"):
+        FitReport.from_dict({"chosen_model": "diffuse"})
