@@ -72,6 +72,7 @@ _PROVIDERS: dict[str, str] = {
     "sheen": "brdfrig.fit.pbr",
     "tabulated": "brdfrig.fit.measured",
     "neural": "brdfrig.fit.measured",
+    "bivariate": "brdfrig.fit.bivariate",
 }
 
 

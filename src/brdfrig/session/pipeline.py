@@ -263,7 +263,8 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     for name, (scenes, pixels) in per_sample.items():
         echo(f"fitting {name}: {len(scenes)} scene(s), model {fit.model}, lmax {fit.lmax}, pmax {fit.pmax}, "
              f"solver {fit.solver}")
-        res = fit_brdf(scenes, model=fit.model, lmax=fit.lmax, pmax=fit.pmax, solver=fit.solver, progress=progress)
+        res = fit_brdf(scenes, model=fit.model, lmax=fit.lmax, pmax=fit.pmax, solver=fit.solver, progress=progress,
+                       estimate=True)
         brdf_path = results_dir / f"{name}.brdf.json"
         report = res.report
         save_brdf(brdf_path, res.brdf, report,
