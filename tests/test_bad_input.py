@@ -456,6 +456,19 @@ def test_a_full_disk_during_capture_says_resume(tmp_path, capsys):
                         rf"`brdfrig capture resume {disk}/s`", line), line
 
 
+def test_a_real_cameras_frame_is_checked_at_the_first_metering_shot(base):
+    """No simulator to ask before shooting: the first frame's shape is checked against the plan's circles."""
+    from brdfrig.errors import ConfigError
+    from brdfrig.session.config import load_session_config
+    from brdfrig.session.runner import frame_mask
+
+    config = load_session_config(base / "plan-circle.toml")
+    with pytest.raises(ConfigError, match=r"key 'circle' in \[plan\.probe\] of .*plan-circle\.toml \(615\.00, 120\.00, "
+                                          r"90\.00\) extends outside the 640x240 image the camera delivers"):
+        frame_mask((240, 640), config)
+    assert frame_mask((240, 640), load_session_config(SIM_BENCH)).sum() > 0
+
+
 if __name__ == "__main__":  # regenerate docs/BAD_INPUT.md
     import tempfile
 

@@ -118,19 +118,22 @@ def preflight(config: SessionConfig) -> None:
     With the simulated camera: the ``[rig.sim]`` options build a bench, and every
     circle of the plan lies inside its frame.  Raises :class:`ConfigError`.
     """
-    if config.rig.camera.backend != "sim":
-        return
+    if config.rig.camera.backend == "sim":
+        check_circles(config, sim_bench(config).frame_shape, "of the simulated camera: fix the circle before shooting")
+
+
+def check_circles(config: SessionConfig, shape: tuple[int, int], hint: str) -> None:
+    """ConfigError naming the key if a circle of the plan is not inside a frame of ``shape`` (H, W)."""
     from brdfrig.hdr.probe import check_circle_in_frame
 
-    bench = sim_bench(config)
     circles = [("[plan.probe]", config.plan.probe.circle)] + [
         (f"[[plan.samples]] {s.name!r}", s.circle) for s in config.plan.samples]
     for where, circle in circles:
         if circle is not None:
             try:
-                check_circle_in_frame(bench.frame_shape, circle, f"key 'circle' in {where} of {config.source}")
+                check_circle_in_frame(shape, circle, f"key 'circle' in {where} of {config.source}")
             except ValueError as exc:
-                raise ConfigError(f"{exc} of the simulated camera: fix the circle before shooting") from None
+                raise ConfigError(f"{exc} {hint}") from None
 
 
 def _sim_table_options(config: SessionConfig) -> dict:
@@ -165,7 +168,12 @@ def _seed_for_shot(camera, key: str) -> None:
 
 
 def frame_mask(shape: tuple[int, int], config: SessionConfig) -> np.ndarray | None:
-    """Union of the probe and sample discs given in the plan, as an (H, W) bool mask (None if none given)."""
+    """Union of the probe and sample discs given in the plan, as an (H, W) bool mask (None if none given).
+
+    Called with the first metering frame's shape: a circle outside the frame the
+    camera delivers is a :class:`ConfigError` there, before the bracket is shot.
+    """
+    check_circles(config, shape, "the camera delivers: fix the circle in the plan and start a new session")
     circles = [config.plan.probe.circle] + [s.circle for s in config.plan.samples]
     circles = [c for c in circles if c is not None]
     if not circles:
