@@ -114,3 +114,16 @@ def test_registry_reads_analytic_models_without_a_prior_import():
     for brdf, (model, value) in zip(cases, json.loads(run.stdout)):
         assert model == brdf.model
         np.testing.assert_allclose(value, brdf.evaluate(0.4, 0.7, 2.0), rtol=1e-12)
+
+
+def test_a_non_finite_parameter_is_never_written(tmp_path):
+    """A BRDF whose description holds NaN (e.g. a fit gone wrong) is refused, naming the key; nothing is written."""
+    from brdfrig.errors import InputError
+
+    class Broken:
+        def to_dict(self):
+            return {"model": "ggx", "alpha": [0.3, float("nan"), 0.3]}
+
+    with pytest.raises(InputError, match=r"b\.json: refusing to write a BRDF with a non-finite parameter \(brdf\.alpha\[1\]\)"):
+        save_brdf(tmp_path / "b.json", Broken())
+    assert not list(tmp_path.iterdir())

@@ -63,6 +63,19 @@ def jsonable(obj):
     return str(obj)  # paths and other objects in a report or provenance: their text
 
 
+def _non_finite(obj, where: str = "brdf") -> str | None:
+    """The key path of the first NaN/inf number in a nested dict/list/array (None if all are finite)."""
+    if isinstance(obj, dict):
+        return next((w for k, v in obj.items() if (w := _non_finite(v, f"{where}.{k}"))), None)
+    if isinstance(obj, np.ndarray) and obj.dtype.kind in "fc":
+        return None if np.isfinite(obj).all() else f"{where}[flat {int(np.flatnonzero(~np.isfinite(obj))[0])}]"
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return next((w for i, v in enumerate(obj) if (w := _non_finite(v, f"{where}[{i}]"))), None)
+    if isinstance(obj, (float, np.floating)) and not np.isfinite(obj):
+        return where
+    return None
+
+
 def save_brdf(path, brdf: FittedBRDF, report=None, provenance: dict | None = None, *,
               overwrite: bool = True) -> Path:
     """Write ``brdf`` and its fit ``report`` to ``path`` (JSON), atomically (``overwrite=False``: never replace a file).
@@ -71,12 +84,21 @@ def save_brdf(path, brdf: FittedBRDF, report=None, provenance: dict | None = Non
     -------
     Path
         The path written.
+
+    Raises
+    ------
+    InputError
+        The BRDF has a NaN or infinite parameter (nothing is written).
     """
     path = Path(path)
+    description = brdf.to_dict()
+    bad = _non_finite(description)
+    if bad:
+        raise InputError(f"{path}: refusing to write a BRDF with a non-finite parameter ({bad}): nothing written")
     doc = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
-        "brdf": jsonable(brdf.to_dict()),
+        "brdf": jsonable(description),
         "conventions": CONVENTIONS,
         "report": jsonable(report or {}),
         "provenance": jsonable(
