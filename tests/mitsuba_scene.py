@@ -5,12 +5,14 @@ MATH.md lat-long map resampled into Mitsuba's ``envmap``) is
 :func:`brdfrig.evaluate.mitsuba_peer.render_sphere`; this module adds what the
 tests share: the skip rules (no Mitsuba, no ``../shared``), the real probes at
 64x32, a few named Mitsuba materials, renders cached by
-``(material, probe, size, spp, seed)``, and the sphere-pixel comparison.
+``(material, probe, rows, size, spp, seed, pixel)``, and the sphere-pixel comparison.
 
-Mitsuba's pixels are box-filtered over their area while brdfrig's renderers
-sample the normal at the pixel centre; the difference is second order in the
-pixel size except near the limb, so comparisons use the pixels at least
-:data:`LIMB_MARGIN_PX` inside it (as the fitter does).
+Mitsuba's pixels are box-filtered over their area (``pixel="area"``, the
+``scalar_rgb`` default) while brdfrig's renderers sample the normal at the pixel
+centre; for smooth shading the difference is second order in the pixel size except
+near the limb, so comparisons use the pixels at least :data:`LIMB_MARGIN_PX` inside
+it (as the fitter does).  Highlights narrower than a pixel need ``pixel="centre"``
+(``llvm_ad_rgb``; :data:`brdfrig.evaluate.mitsuba_peer.PIXEL_MODES`).
 """
 
 from __future__ import annotations
@@ -55,6 +57,15 @@ def require_mitsuba_and_probes() -> None:
         pytest.skip("../shared/data/probes is absent")
 
 
+def require_ad_variant() -> None:
+    """Skip the calling test when Mitsuba's ``llvm_ad_rgb`` cannot run here (libLLVM >= 19 missing)."""
+    require_mitsuba_and_probes()
+    from brdfrig.evaluate.mitsuba_peer import ad_variant
+
+    if ad_variant() is None:
+        pytest.skip("no runnable Mitsuba AD variant (llvm_ad_rgb needs libLLVM >= 19: scripts/setup --dev)")
+
+
 @functools.lru_cache(maxsize=8)
 def probe_latlong(name: str, rows: int = PROBE_ROWS) -> np.ndarray:
     """The real probe ``name`` (grace, pisa, ennis) box-downsampled to ``2 rows x rows``, RGB float64."""
@@ -64,10 +75,12 @@ def probe_latlong(name: str, rows: int = PROBE_ROWS) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
-def _render(bsdf_key: tuple, probe: str, size: int, spp: int, seed: int) -> np.ndarray:
+def _render(bsdf_key: tuple, probe: str, rows: int, size: int, spp: int, seed: int, pixel: str) -> np.ndarray:
     from brdfrig.evaluate.mitsuba_peer import render_sphere
 
-    image = render_sphere(_unfreeze(bsdf_key), probe_latlong(probe), size, spp=spp, seed=seed)
+    variant = "scalar_rgb" if pixel == "area" else "llvm_ad_rgb"
+    image = render_sphere(_unfreeze(bsdf_key), probe_latlong(probe, rows), size, spp=spp, seed=seed,
+                          variant=variant, pixel=pixel)
     image.setflags(write=False)
     return image
 
@@ -88,10 +101,16 @@ def _unfreeze(value):
     return value
 
 
-def render(material: str | dict, probe: str, size: int = SIZE, spp: int = SPP, seed: int = 0) -> np.ndarray:
-    """Mitsuba render ``(size, size, 3)`` of a named :data:`MATERIALS` entry (or a BSDF dict) under a probe, cached."""
+def render(material: str | dict, probe: str, size: int = SIZE, spp: int = SPP, seed: int = 0, *,
+           rows: int = PROBE_ROWS, pixel: str = "area") -> np.ndarray:
+    """Mitsuba render ``(size, size, 3)`` of a named :data:`MATERIALS` entry (or a BSDF dict) under a probe, cached.
+
+    ``pixel="area"`` (camera-like pixels) renders in ``scalar_rgb``; ``"centre"`` (brdfrig's
+    pixel-centre convention) in ``llvm_ad_rgb`` (call :func:`require_ad_variant` first).
+    ``rows``: the probe's lat-long height.
+    """
     bsdf = MATERIALS[material] if isinstance(material, str) else material
-    return _render(_freeze(bsdf), probe, int(size), int(spp), int(seed))
+    return _render(_freeze(bsdf), probe, int(rows), int(size), int(spp), int(seed), pixel)
 
 
 @functools.lru_cache(maxsize=4)

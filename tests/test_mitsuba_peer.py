@@ -53,11 +53,9 @@ def test_peer_recovers_a_principled_sphere():
     Measured (64 px, 60 iterations x 16 spp): base colour within 0.015, roughness 0.348 for 0.35,
     relighting 1.7% (Mitsuba noise of both renders included).
     """
-    ms.require_mitsuba_and_probes()
-    from brdfrig.evaluate.mitsuba_peer import ad_variant, fit_principled, render_principled
+    ms.require_ad_variant()
+    from brdfrig.evaluate.mitsuba_peer import fit_principled, render_principled
 
-    if ad_variant() is None:
-        pytest.skip("no runnable Mitsuba AD variant (llvm_ad_rgb needs libLLVM >= 19)")
     grace, ennis = ms.probe_latlong("grace"), ms.probe_latlong("ennis")
     image = render_principled(TRUTH, grace, SIZE, spp=512)
     params, seconds = fit_principled(image, grace, spp=16, iterations=60, seed=1)
