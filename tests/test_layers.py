@@ -29,8 +29,9 @@ ALLOWED: dict[str, set[str]] = {
     "sim": BASE | {"rig", "hdr", "fit", "lighting", "report", "session", "sim"},
     "evaluate": BASE | {"hdr", "fit", "lighting", "report", "session", "sim", "evaluate"},
     "report": BASE | {"hdr", "fit", "lighting", "report"},
+    "export": BASE | {"fit", "lighting", "export"},
     "devices": BASE | {"rig", "sim", "session", "devices"},
-    "cli": BASE | {"rig", "hdr", "fit", "lighting", "orientation", "session", "sim", "evaluate", "report", "devices", "cli"},
+    "cli": BASE | {"rig", "hdr", "fit", "lighting", "orientation", "session", "sim", "evaluate", "report", "export", "devices", "cli"},
     "__main__": {"cli"},
     "__init__": set(),
 }

@@ -19,8 +19,8 @@ from brdfrig.hdr.sphere import sphere_pixels
 __all__ = ["environment_from_latlong", "read_latlong", "environment_from_probe", "scene_from_image",
            "standard_lightings"]
 
-STANDARD_HEIGHT = 64
-"""Rows of the standard lat-long lightings (128 x 64 cells, 2.8 degrees each)."""
+STANDARD_HEIGHT = 32
+"""Rows of the standard lat-long lightings (64 x 32 cells of 5.6 degrees; sharp lobes are integrated over cells)."""
 
 
 def environment_from_latlong(image, rotation=None, *, name: str = "lighting") -> Environment:

@@ -38,6 +38,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "brdfrig.cli.fit",
     "brdfrig.cli.render",
     "brdfrig.cli.plot",
+    "brdfrig.cli.export",
     "brdfrig.cli.bench",
 )
 
@@ -87,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 #: Commands that run numba kernels (the others only read files or print).
-COMPUTING = frozenset({"demo", "capture", "refit", "merge", "probe", "envsh", "fit", "render", "bench"})
+COMPUTING = frozenset({"demo", "capture", "refit", "merge", "probe", "envsh", "fit", "render", "bench", "export", "plot"})
 
 
 def _announce_compilation(command: str) -> None:
