@@ -73,4 +73,4 @@ def test_newer_format_and_non_session_are_refused(tmp_path):
 def test_bad_fit_option_is_named(tmp_path):
     make_session(tmp_path / "s")
     r = brdfrig("refit", tmp_path / "s", "--lmax", "99")
-    assert r.returncode == 2 and "key 'lmax' in [fit] of the command line must be an integer in [0, 30], got 99" in r.stderr
+    assert r.returncode == 2 and "argument --lmax: must be an integer in [0, 30], got '99'" in r.stderr
