@@ -22,6 +22,7 @@ from brdfrig.cli.demo import DEMO_CONFIG, _quick
 from brdfrig.session.config import load_session_config, session_config_from_dict
 from brdfrig.session.library import Library
 from brdfrig.session.refit import refit_batch, refit_session
+from brdfrig.devices import open_rig
 from brdfrig.session.runner import run_session
 
 OVERRIDES = {"model": "diffuse", "lmax": 4}
@@ -35,7 +36,8 @@ def make_sessions(root: Path, count: int) -> list[Path]:
         samples = plan["samples"] if seed % 2 == 0 else plan["samples"][:1]
         doc = {"session": {"name": f"sim-{seed:02d}"}, "rig": {**base["rig"], "sim": {**base["rig"]["sim"], "seed": seed}},
                "plan": {**plan, "samples": samples, "scene_angles": [0.0, 90.0]}, "fit": base["fit"]}
-        run_session(session_config_from_dict(doc, "bench"), root / f"s{seed:02d}", prompt=None, progress=False)
+        run_session(session_config_from_dict(doc, "bench"), root / f"s{seed:02d}", rig_factory=open_rig, prompt=None,
+                    progress=False)
         out.append(root / f"s{seed:02d}")
     return out
 

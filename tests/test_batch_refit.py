@@ -34,6 +34,7 @@ PRESET = ["--model", "diffuse", "--lmax", "3"]
 @pytest.fixture(scope="module")
 def stored(tmp_path_factory):
     """A directory of N_SESSIONS small simulated sessions (two seeds, copied), none fitted yet."""
+    from brdfrig.devices import open_rig
     from brdfrig.session.runner import run_session
 
     root = tmp_path_factory.mktemp("sessions")
@@ -45,7 +46,7 @@ def stored(tmp_path_factory):
                         "scene_angles": [0.0, 90.0]},
                "fit": base["fit"]}
         out = root / f"s{seed}"
-        run_session(session_config_from_dict(doc, "test"), out, prompt=None, progress=False)
+        run_session(session_config_from_dict(doc, "test"), out, rig_factory=open_rig, prompt=None, progress=False)
         made.append(out)
     for k in range(N_SESSIONS - len(made)):
         shutil.copytree(made[k % len(made)], root / f"copy{k}")

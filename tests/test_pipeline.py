@@ -16,7 +16,8 @@ from brdfrig.session.pipeline import (
     scene_lighting,
     sample_scenes,
 )
-from brdfrig.session.runner import run_session, sim_bench
+from brdfrig.devices import open_rig, sim_bench
+from brdfrig.session.runner import run_session
 
 PLAN = """
 [rig]
@@ -55,7 +56,7 @@ def session(tmp_path_factory):
     root = tmp_path_factory.mktemp("pipe")
     (root / "plan.toml").write_text(PLAN)
     cfg = load_session_config(root / "plan.toml")
-    status, _ = run_session(cfg, root / "s", prompt=None, progress=False)
+    status, _ = run_session(cfg, root / "s", rig_factory=open_rig, prompt=None, progress=False)
     assert status == "complete"
     return root / "s", cfg
 

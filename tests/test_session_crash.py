@@ -67,12 +67,13 @@ def _child(plan: str, out: str, resume: bool) -> None:
     os.dup2(devnull, 2)
     code = 1
     try:
+        from brdfrig.devices import open_rig
         from brdfrig.session.runner import resume_session, run_session
 
         if resume:
-            status, _ = resume_session(out, prompt=None, progress=False)
+            status, _ = resume_session(out, rig_factory=open_rig, prompt=None, progress=False)
         else:
-            status, _ = run_session(load_session_config(plan), out, prompt=None, progress=False)
+            status, _ = run_session(load_session_config(plan), out, rig_factory=open_rig, prompt=None, progress=False)
         code = 0 if status == "complete" else 3
     finally:
         os._exit(code)
@@ -80,7 +81,7 @@ def _child(plan: str, out: str, resume: bool) -> None:
 
 # Session processes come from a forkserver started clean, not forked from pytest: numba's OpenMP layer
 # raises SIGTERM in a child forked from a process that already ran a parallel kernel (earlier tests do).
-_CHILD_MODULES = ["brdfrig.session.pipeline", "brdfrig.session.runner", "brdfrig.hdr.dng", "brdfrig.hdr.raw", "brdfrig.sim.grbl",
+_CHILD_MODULES = ["brdfrig.session.pipeline", "brdfrig.session.runner", "brdfrig.devices", "brdfrig.hdr.dng", "brdfrig.hdr.raw", "brdfrig.sim.grbl",
                   "brdfrig.sim.camera", "brdfrig.rig.turntable"]
 _CTX = multiprocessing.get_context("forkserver")
 _CTX.set_forkserver_preload(_CHILD_MODULES)

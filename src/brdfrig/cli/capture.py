@@ -38,6 +38,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from brdfrig.devices import open_rig, preflight
     from brdfrig.session.runner import resume_session, run_session
     from brdfrig.session.store import SessionStore
 
@@ -53,16 +54,18 @@ def run(args) -> int:
 
         config = load_session_config(args.plan, args.rig, args.fit_file)
         if args.dry_run:
-            from brdfrig.session.runner import preflight
+            from brdfrig.devices import preflight
 
             preflight(config)
             echo(describe_plan(build_plan(config)))
             return 0
-        status, store = run_session(config, args.out, prompt=prompt, progress=progress, echo=echo)
+        preflight(config)
+        status, store = run_session(config, args.out, rig_factory=open_rig, prompt=prompt, progress=progress,
+                                    echo=echo)
         with store.locked():
             return _after_shooting(args, status, store, echo)
     with SessionStore.open(args.dir).locked():
-        status, store = resume_session(args.dir, prompt=prompt, progress=progress, echo=echo)
+        status, store = resume_session(args.dir, rig_factory=open_rig, prompt=prompt, progress=progress, echo=echo)
         return _after_shooting(args, status, store, echo)
 
 

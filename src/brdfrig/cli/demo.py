@@ -77,7 +77,7 @@ def relighting_errors(config, samples) -> list[dict]:
 
     from brdfrig.fit.metrics import relative_rms
     from brdfrig.fit.groundtruth import render_groundtruth
-    from brdfrig.session.runner import sim_bench
+    from brdfrig.devices import sim_bench
     from brdfrig.hdr.sphere import sphere_pixels
 
     bench = sim_bench(config)
@@ -101,6 +101,7 @@ def run(args) -> int:
 
     from brdfrig.session.config import load_session_config
     from brdfrig.session.pipeline import run_pipeline
+    from brdfrig.devices import open_rig, preflight
     from brdfrig.session.runner import run_session
 
     t0 = time.monotonic()
@@ -113,7 +114,9 @@ def run(args) -> int:
         config = _quick(config)
     out = Path(args.dir) if args.dir else Path(tempfile.mkdtemp(prefix="brdfrig-demo-")) / "session"
     echo(f"brdfrig demo: simulated bench session -> {out}")
-    status, store = run_session(config, out, prompt=None, progress=not args.no_progress, echo=echo)
+    preflight(config)
+    status, store = run_session(config, out, rig_factory=open_rig, prompt=None, progress=not args.no_progress,
+                                echo=echo)
     echo(f"captured {len(store.files)} files in {time.monotonic() - t0:.0f} s")
     result = run_pipeline(out, progress=not args.no_progress, echo=echo)
     rows = relighting_errors(config, result.samples)

@@ -134,7 +134,7 @@ def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Pa
         return
     try:
         if s.backend == "sim":
-            from brdfrig.session.runner import make_sim_bench
+            from brdfrig.devices import make_sim_bench
             from brdfrig.sim.camera import SimulatedCamera
 
             camera = SimulatedCamera(make_sim_bench(sim_opts, carries, "the rig check's simulated bench"), sim)

@@ -22,13 +22,12 @@ driver is a journal record (``turntable_*`` events).
 from __future__ import annotations
 
 import contextlib
-import difflib
 import errno
 import hashlib
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import numpy as np
 
@@ -36,92 +35,9 @@ from brdfrig.session.config import ConfigError, SessionConfig, stored_session_co
 from brdfrig.session.plan import Plan, build_plan, meter_bracket, shot_key
 from brdfrig.session.store import DiskFullError, SessionStore
 
-__all__ = ["run_session", "resume_session", "open_rig", "completed_shots", "frame_mask", "RAW_SUBDIR"]
+__all__ = ["run_session", "resume_session", "check_circles", "completed_shots", "frame_mask", "RAW_SUBDIR"]
 
 RAW_SUBDIR = "raw"
-@contextlib.contextmanager
-def open_rig(config: SessionConfig, journal: Callable[..., object] | None = None) -> Iterator[tuple[object, object]]:
-    """Connect the configured turntable and camera; yield ``(turntable, camera)``, disconnect on exit.
-
-    ``sim`` backends run the GRBL firmware simulator on a pseudo-terminal, driven
-    by the real :class:`brdfrig.rig.turntable.GrblTurntable`, and the simulated camera
-    reading the simulator's physical table angle.  ``journal(event, **fields)``
-    receives the driver's retries (e.g. ``SessionStore.append``).  The turntable
-    is stopped on the way out, whatever happened.
-    """
-    from brdfrig.rig.turntable import GrblTurntable
-
-    tt_cfg, cam_cfg = config.rig.turntable, config.rig.camera
-    with contextlib.ExitStack() as stack:
-        table_state = None
-        if tt_cfg.backend == "sim":
-            from brdfrig.sim.grbl import GrblSimulator
-
-            sim = stack.enter_context(GrblSimulator(**_sim_table_options(config)))
-            port, table_state = sim.port, sim
-        else:
-            port = tt_cfg.port
-        turntable = None
-        if tt_cfg.backend != "none":
-            turntable = stack.enter_context(
-                GrblTurntable(port, tt_cfg.baud, tt_cfg.steps_per_degree, tt_cfg.backlash_deg,
-                              homing_timeout_s=tt_cfg.timeout_s, journal=journal)
-            )
-            turntable.home()
-        if cam_cfg.backend == "sim":
-            from brdfrig.sim.camera import SimulatedCamera
-
-            bench = sim_bench(config)
-            camera = SimulatedCamera(bench, table_state, **_sim_camera_options(config))
-        elif cam_cfg.backend == "gphoto2":
-            from brdfrig.rig.gphoto import GphotoCamera
-
-            camera = GphotoCamera()
-        else:
-            from brdfrig.rig.watch_folder import WatchFolderCamera
-
-            camera = WatchFolderCamera(cam_cfg.watch_dir, timeout_s=cam_cfg.timeout_s)
-        stack.enter_context(camera)
-        yield turntable, camera
-
-
-_SIM_TABLE_KEYS = ("table_start_deg",)
-
-
-def sim_bench(config: SessionConfig):
-    """The ``brdfrig.sim.bench.SimBench`` described by ``[rig.sim]`` of a session config."""
-    return make_sim_bench(config.rig.sim, config.rig.carries, config.source)
-
-
-def make_sim_bench(options: dict, carries: str, source: str):
-    """A ``brdfrig.sim.bench.SimBench`` from ``[rig.sim]``-style options (unknown keys named, with ``source``)."""
-    import inspect
-
-    from brdfrig.sim.bench import SimBench
-
-    opts = {k: v for k, v in options.items() if k not in _SIM_TABLE_KEYS}
-    allowed = [p for p in inspect.signature(SimBench).parameters if p != "carries"]
-    for key in opts:
-        if key not in allowed:
-            hint = difflib.get_close_matches(key, allowed, n=1)
-            raise ConfigError(f"unknown key {key!r} in [rig.sim] of {source}"
-                              + (f"; did you mean {hint[0]!r}?" if hint else f"; allowed keys: {', '.join(allowed)}"))
-    try:
-        return SimBench(carries=carries, **opts)
-    except (ValueError, TypeError) as exc:
-        raise ConfigError(f"[rig.sim] of {source}: {exc}") from None
-
-
-def preflight(config: SessionConfig) -> None:
-    """Checks that need no device, made before anything is shot (and by ``--dry-run``).
-
-    With the simulated camera: the ``[rig.sim]`` options build a bench, and every
-    circle of the plan lies inside its frame.  Raises :class:`ConfigError`.
-    """
-    if config.rig.camera.backend == "sim":
-        check_circles(config, sim_bench(config).frame_shape, "of the simulated camera: fix the circle before shooting")
-
-
 def check_circles(config: SessionConfig, shape: tuple[int, int], hint: str) -> None:
     """ConfigError naming the key if a circle of the plan is not inside a frame of ``shape`` (H, W)."""
     from brdfrig.hdr.probe import check_circle_in_frame
@@ -134,25 +50,6 @@ def check_circles(config: SessionConfig, shape: tuple[int, int], hint: str) -> N
                 check_circle_in_frame(shape, circle, f"key 'circle' in {where} of {config.source}")
             except ValueError as exc:
                 raise ConfigError(f"{exc} {hint}") from None
-
-
-def _sim_table_options(config: SessionConfig) -> dict:
-    """The simulated table's true mechanics: the configured ones (a correctly set-up board)."""
-    tt = config.rig.turntable
-    return {
-        "steps_per_degree": tt.steps_per_degree,
-        "backlash_deg": tt.backlash_deg,
-        "max_rate_deg_s": tt.speed_deg_s,
-        "baud": tt.baud,
-        "start_angle_deg": float(config.rig.sim.get("table_start_deg", 37.0)),
-    }
-
-
-def _sim_camera_options(config: SessionConfig) -> dict:
-    """The simulated sensor: the noise model the config declares (so auto exposure and merge match it)."""
-    cam = config.rig.camera
-    return {"full_well_e": cam.full_well_e, "read_noise_e": cam.read_noise_e,
-            "seed": int(config.rig.sim.get("seed", 0))}
 
 
 def _seed_for_shot(camera, key: str) -> None:
@@ -317,7 +214,7 @@ class _Runner:
 def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory, sleep) -> str:
     """Run the plan with the rig open; always journal a final ``stop`` record with the exit status.
 
-    ``rig_factory(config, journal=store.append)`` opens the rig (see :func:`open_rig`).
+    ``rig_factory(config, journal=store.append)`` opens the rig (:func:`brdfrig.devices.open_rig`).
     """
     status, reason = "error", ""
     try:
@@ -353,8 +250,8 @@ def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory, 
             store.append("stop", status=status, reason=reason, files=len(store.files))
 
 
-def run_session(config: SessionConfig, out_dir: str | Path, *, prompt: Callable[[str], str] | None = input,
-                progress: bool = True, rig_factory=open_rig, echo: Callable[[str], None] | None = None,
+def run_session(config: SessionConfig, out_dir: str | Path, *, rig_factory, prompt: Callable[[str], str] | None = input,
+                progress: bool = True, echo: Callable[[str], None] | None = None,
                 sleep: Callable[[float], None] = time.sleep) -> tuple[str, SessionStore]:
     """Create the session directory ``out_dir`` and run the whole plan under the session's writer lock.
 
@@ -362,9 +259,10 @@ def run_session(config: SessionConfig, out_dir: str | Path, *, prompt: Callable[
     stopped at a scene prompt).  Raises ``StoreError`` if ``out_dir`` exists and is
     not an empty directory or is in use, ``DiskFullError`` on a full disk, and
     re-raises ``KeyboardInterrupt`` after stopping the table.  ``sleep`` waits the
-    plan's ``settle_s`` after each move.
+    plan's ``settle_s`` after each move.  ``rig_factory(config, journal=...)`` is a context
+    manager yielding ``(turntable, camera)`` (:func:`brdfrig.devices.open_rig` for the
+    configured devices; its :func:`brdfrig.devices.preflight` checks what it can first).
     """
-    preflight(config)
     plan = build_plan(config)
     if echo:
         echo(_describe(plan))
@@ -374,8 +272,8 @@ def run_session(config: SessionConfig, out_dir: str | Path, *, prompt: Callable[
         return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory, sleep=sleep), store
 
 
-def resume_session(session_dir: str | Path, *, prompt: Callable[[str], str] | None = input, progress: bool = True,
-                   rig_factory=open_rig, echo: Callable[[str], None] | None = None,
+def resume_session(session_dir: str | Path, *, rig_factory, prompt: Callable[[str], str] | None = input,
+                   progress: bool = True, echo: Callable[[str], None] | None = None,
                    sleep: Callable[[float], None] = time.sleep) -> tuple[str, SessionStore]:
     """Finish a stopped or killed session: verify what is stored, set aside what fails, shoot the rest.
 
