@@ -45,6 +45,8 @@ def test_shipped_configs_load():
         elif f.name.startswith("rig-"):
             cfg = load_session_config(CONFIG_DIR / "sim-bench.toml", rig_path=f)
             assert cfg.rig.camera.backend != "sim" and f.name in cfg.source
+        elif f.name.startswith("plan-"):  # a plan for a real bench: used with the real-bench rig file
+            assert load_session_config(f, rig_path=CONFIG_DIR / "rig-bench.toml").rig.carries == "samples"
         else:
             load_session_config(f)
     assert {"fit-quick.toml", "fit-full.toml", "rig-bench.toml"} <= {f.name for f in files}

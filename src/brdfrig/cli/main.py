@@ -28,6 +28,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     # at the bench
     "brdfrig.cli.demo",
     "brdfrig.cli.rig",
+    "brdfrig.cli.locate",
+    "brdfrig.cli.template",
     "brdfrig.cli.capture",
     "brdfrig.cli.refit",
     "brdfrig.cli.library",

@@ -407,3 +407,51 @@ def detect_sphere(image: np.ndarray, *, radius_range: tuple[float, float] | None
     if r > 0 and cx - r >= -slack and cy - r >= -slack and cx + r <= w + slack and cy + r <= h + slack:
         return float(cx), float(cy), float(min(r, cx, cy, w - cx, h - cy))  # the rim is inside the frame
     raise SphereNotFoundError(f"{name}: no sphere found in the image ({first}); {hint}")
+
+
+def detect_spheres(image: np.ndarray, *, max_count: int = 8, radius_range: tuple[float, float] | None = None,
+                   name: str = "the image") -> list[tuple[float, float, float]]:
+    """Every sphere in an image (chrome probe and samples), each refined to sub-pixel accuracy, left to right.
+
+    Hough candidates are refined one by one (:func:`refine_circle`); a candidate that does
+    not confirm, or overlaps a sphere already found, is skipped.
+
+    Raises
+    ------
+    SphereNotFoundError
+        When no sphere is found.
+    """
+    lum = _luminance(image, name)
+    h, w = lum.shape
+    min_r, max_r = radius_range if radius_range is not None else (20.0, min(h, w) / 2.0)
+    found: list[tuple[float, float, float]] = []
+    for cand in _coarse_circles(lum, min_r, max_r)[: 4 * max_count]:
+        if any(np.hypot(cand[0] - c[0], cand[1] - c[1]) < 0.9 * (cand[2] + c[2]) for c in found):
+            continue
+        try:
+            circle = refine_circle(lum, cand)
+        except SphereNotFoundError:
+            continue
+        if not any(np.hypot(circle[0] - c[0], circle[1] - c[1]) < 0.9 * (circle[2] + c[2]) for c in found):
+            found.append(circle)
+        if len(found) == max_count:
+            break
+    if not found:
+        raise SphereNotFoundError(f"{name}: no sphere found in the image; give the circles in the plan by hand")
+    return sorted(found)
+
+
+def mirror_score(image: np.ndarray, circle) -> float:
+    """How much a sphere looks like a mirror ball: the 99.5th over the 50th percentile of its luminance.
+
+    A chrome ball reflects the light sources themselves (ratios of 100 or more under room
+    light); a diffuse or glossy sample shades them smoothly (ratios of a few).
+    """
+    from brdfrig.hdr.sphere import sphere_pixels
+
+    lum = _luminance(image)
+    px = sphere_pixels(lum.shape, circle, margin_px=2.0)
+    values = lum[px.rows[px.weights > 0], px.cols[px.weights > 0]]
+    lo, hi = np.percentile(values, [50.0, 99.5]) if values.size else (0.0, 0.0)
+    return float(hi / max(lo, 1e-12 * max(hi, 1e-300)))
+
