@@ -270,22 +270,21 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
 
 
 def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -> None:
-    """Set ``relight`` (and, from the other lightings' predictions, ``radiance_check``) of the fitted candidates."""
+    """Check every fitted candidate's radiance under other lightings and set its ``relight`` estimate."""
     cands = fitter.entries
-    fitted = [m for m in cands if m in fitter.brdfs]
     with data.clock("other"):
+        envs = other_lightings(data.scenes[0].env)
+        normals, weights = estimate_pixels(data)
+        preds = {}
+        for m, brdf in fitter.brdfs.items():
+            pred = predict_under(brdf, envs, normals)
+            cands[m].radiance_check = cands[m].radiance_check or radiance_problem(pred, "other lightings")
+            if np.all(np.isfinite(pred)):
+                preds[m] = pred
         if len(data.scenes) >= 2:
-            names = [m for m in fitted if model == m or (cands[m].determined and cands[m].radiance_check is None)]
+            names = [m for m in fitter.brdfs if model == m or (cands[m].determined and cands[m].radiance_check is None)]
             estimates = loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, model == "auto"))
         else:
-            envs = other_lightings(data.scenes[0].env)
-            normals, weights = estimate_pixels(data)
-            preds = {}
-            for m in fitted:
-                pred = predict_under(fitter.brdfs[m], envs, normals)
-                cands[m].radiance_check = cands[m].radiance_check or radiance_problem(pred, "other lightings")
-                if np.all(np.isfinite(pred)):
-                    preds[m] = pred
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
     for m, est in estimates.items():
         cands[m].relight = est

@@ -4,8 +4,9 @@
   (the linear system reached full rank; a single-model fit's own ``determined``).
 - Radiance check: every candidate's predicted radiance (held-out pixels and the relighting estimate's
   other lightings) must be finite and non-negative (:func:`radiance_problem`).
-- Choice (:func:`choose`): ``auto`` keeps the determined candidates whose radiance check passed (and,
-  when any is, the physically plausible ones: :func:`brdfrig.fit.models.plausibility`) and picks the one
+- Choice (:func:`choose`): ``auto`` keeps the determined candidates, of those the ones whose radiance
+  check passed and of those the physically plausible ones (each filter applied when it leaves any:
+  :func:`brdfrig.fit.models.plausibility`), and picks the one
   with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`); of those within
   :data:`SELECT_RTOL` of it, the one with the smallest held-out error.  Without any estimate it picks
   the richest (order :data:`brdfrig.fit.registry.RICHNESS`) whose held-out error (same lighting) is
@@ -63,8 +64,10 @@ def radiance_problem(pred: np.ndarray, where: str) -> str | None:
 
 
 def _admissible(cands: dict[str, Candidate]) -> list[str]:
-    ok = [m for m in RICHNESS if m in cands and cands[m].fitted and cands[m].determined and cands[m].radiance_check is None]
-    # Prefer physically plausible fits (an implausible one extrapolates outside what the lighting measured).
+    ok = [m for m in RICHNESS if m in cands and cands[m].fitted and cands[m].determined]
+    # Prefer fits whose predicted radiance is finite and non-negative, then physically plausible ones
+    # (an implausible fit extrapolates outside what the lighting measured).
+    ok = [m for m in ok if cands[m].radiance_check is None] or ok
     return [m for m in ok if cands[m].plausibility["plausible"]] or ok
 
 
@@ -84,7 +87,7 @@ def choose(cands: dict[str, Candidate]) -> tuple[str, str, str]:
     """``auto``'s choice: ``(model, reason, criterion)`` (module docstring)."""
     ok = _admissible(cands)
     if not ok:
-        return "diffuse", "no admissible candidate (determined, finite non-negative radiance); fell back to diffuse", "none"
+        return "diffuse", "no candidate is determined by these data; fell back to diffuse (minimum norm)", "none"
     rated = [m for m in ok if cands[m].relight is not None and cands[m].relight.value is not None]
     if rated:
         score = {m: cands[m].relight.value for m in rated}
