@@ -7,7 +7,8 @@ Model, per colour channel ``c``::
 
 - the diffuse term: an Oren-Nayar base (albedo ``d_c``, facet slope deviation
   ``s_c``; ``retro = max(0, cos dphi) sin(a) tan(b)``, :class:`brdfrig.fit.analytic.OrenNayar`;
-  ``s = 0`` is Lambertian) plus an SH series radially symmetric about the
+  ``s = 0`` is Lambertian) plus, only when asked for (``series=True``: it
+  extrapolates badly from one image, see :func:`fit_microfacet`), an SH series radially symmetric about the
   normal in bands ``1..L`` (the ``diffuse`` model of :mod:`brdfrig.fit.models`
   without its band 0): ``B = sum_l a_l sum_m L_lm Y_lm(n)``.  The base carries
   every band (no truncation error for a Lambertian, which an SH series alone
@@ -15,9 +16,11 @@ Model, per colour channel ``c``::
   7% at ``L = 2``, the missing bands leaking into a broad lobe); the series
   absorbs what the base does not fit in the bands the lighting measures;
 - the lobe: :class:`brdfrig.fit.analytic.GGX`'s lobe with its own roughness
-  ``alpha_c``, normal-incidence reflectance ``f0_c`` and a free grazing
-  reflectance ``f90_c`` (Schlick's ``f90 = 1`` is not imposed, so the lobe
-  stays linear in its amplitudes).
+  ``alpha_c``, normal-incidence reflectance ``f0_c`` and grazing reflectance
+  ``f90_c`` with ``0 <= f0_c <= f90_c <= 1``: ``f90_c`` scales Schlick's
+  curve (``f90 = 1`` is Schlick's), which keeps the lobe linear in its
+  amplitudes and its Fresnel never above 1.  Left free, ``f90`` absorbed what
+  the lobe and base could not fit (1.32 on Mitsuba's roughplastic).
 
 For a fixed ``alpha_c`` the rendered sphere is LINEAR in the base written as
 ``(d A, d B)`` (a Lambertian and a retro-reflection column), the series
@@ -25,8 +28,9 @@ For a fixed ``alpha_c`` the rendered sphere is LINEAR in the base written as
 least-squares problem in ``log(alpha_c)`` with the rest solved in closed form
 at every step (variable projection, Golub & Pereyra 1973): the series columns
 are projected out once per channel (their SVD; minimum norm where the lighting
-leaves a band unexcited), then a four-column non-negative least-squares solve
-gives ``dA, dB, f0, f90 >= 0``; ``s_c`` follows from ``B/A`` (clamped to
+leaves a band unexcited), then a four-column least-squares solve under the
+constraints ``dA, dB, f0 >= 0``, ``f0 <= f90 <= 1`` (exact, :func:`brdfrig.fit.lsq.polytope_lsq`)
+gives the amplitudes; ``s_c`` follows from ``B/A`` (clamped to
 :data:`SIGMA_MAX`, reported).  This is identifiable from one image: ``L + 4``
 linear unknowns and one roughness per channel against thousands of pixels.
 
@@ -57,12 +61,13 @@ import math
 import time
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar, nnls
+from scipy.optimize import brentq, minimize_scalar
 
 from brdfrig.errors import InputError
 from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar, oren_nayar_ab
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.groundtruth import render_ggx_basis, render_groundtruth
+from brdfrig.fit.lsq import polytope_lsq
 from brdfrig.fit.models import DiffuseBRDF
 from brdfrig.fit.scene import Environment, Scene
 from brdfrig.fit.shproject import project_environment
@@ -86,6 +91,10 @@ SERIES_MIN_GAIN = 0.01
 """The SH series is kept only when it lowers the check pixels' relative RMS error by more than this fraction."""
 SERIES_RTOL = 1e-10
 """Singular values of a channel's weighted series columns below this fraction of the largest are dropped (minimum norm)."""
+AMPLITUDE_G = np.array([[-1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0, -1.0, 0], [0, 0, 1.0, -1.0], [0, 0, 0, 1.0]])
+AMPLITUDE_H = np.array([0.0, 0.0, 0.0, 0.0, 1.0])
+"""Constraints ``G (dA, dB, f0, f90) <= H`` of a channel's amplitudes: all >= 0 and ``f0 <= f90 <= 1``
+(the lobe's Fresnel is ``f90`` times a Schlick curve from ``f0 / f90`` to 1: never above 1 at grazing)."""
 SIGMA_MAX = math.pi / 2
 """Largest Oren-Nayar slope deviation (radians): ``B/A`` = 0.78 there; a fitted ratio above it is clamped (reported)."""
 LOBE_MIN_FRACTION = 1e-3
@@ -242,9 +251,9 @@ class _Channel:
     def solve(self, cols: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """(squared residual, amplitudes >= 0 (k,), series coefficients (nb,)) for weighted non-negative columns (N, k)."""
         perp = cols - self.u @ (self.u.T @ cols)
-        amps, rnorm = nnls(perp, self.y_perp)
+        r2, amps = polytope_lsq(perp, self.y_perp, AMPLITUDE_G, AMPLITUDE_H)
         a = self.vt.T @ ((self.u.T @ (self.y - cols @ amps)) / self.s)
-        return rnorm**2, amps, a
+        return r2, amps, a
 
 
 def _base_columns(normals: np.ndarray, env: Environment) -> np.ndarray:
@@ -321,6 +330,7 @@ def fit_microfacet(
     max_pixels: int = DEFAULT_MAX_PIXELS,
     env_rows: int = DEFAULT_ENV_ROWS,
     alpha_range: tuple[float, float] = DEFAULT_ALPHA_RANGE,
+    series: bool = False,
     seed: int = 0,
     progress: bool = True,
 ) -> tuple[MicrofacetBRDF, dict]:
@@ -331,7 +341,7 @@ def fit_microfacet(
     scenes : list of Scene
         Lighting and observed sphere pixels (any number; channel counts must agree).
     lmax : int
-        Band limit ``L`` of the SH series (0: the Oren-Nayar base alone).
+        Band limit ``L`` of the SH series (with ``series=True``; 0: the Oren-Nayar base alone).
     bands : tuple of int, optional
         Bands of the series to keep (default ``1..lmax``; the fitter passes the
         bands the lighting excites; band 0 is always the base's).
@@ -341,6 +351,11 @@ def fit_microfacet(
         Resolution of the coarsened environments (:func:`coarsen_environment`).
     alpha_range : (float, float)
         Search interval of the GGX roughness.
+    series : bool
+        Offer the SH diffuse series in bands ``1..lmax`` (kept only when the check pixels gain).  Off by
+        default: from one image the series absorbs what base and lobe do not fit and extrapolates it
+        (standard case, 96 px, grace -> ennis: relit rgl/acrylic_felt_green at 40.7% with it, 14.3%
+        without; rgl/colodur_azure_4e 12.1% / 6.3%; a roughplastic-like analytic sphere 2.9% / 3.5%).
     seed : int
         Seed of the pixel subsample.
     progress : bool
@@ -368,7 +383,7 @@ def fit_microfacet(
         raise ValueError(f"alpha_range must satisfy 0 < low < high, got {alpha_range}")
     if lmax < 0:
         raise ValueError(f"lmax must be >= 0, got {lmax}")
-    series_bands = tuple(b for b in (range(1, lmax + 1) if bands is None else bands) if 1 <= b <= lmax)
+    series_bands = tuple(b for b in (range(1, lmax + 1) if bands is None else bands) if 1 <= b <= lmax) if series else ()
     spec = ModelSpec("diffuse", lmax, bands=series_bands) if series_bands else None
     fit_picks, check_picks = _subsample(scenes, max_pixels, np.random.default_rng(seed))
     coarse = [coarsen_environment(s.env, env_rows) for s in scenes]
@@ -427,6 +442,10 @@ def fit_microfacet(
         fitted = cols @ amps[c] + data.series[:, :, c] @ coef[:, c]
         lobe_share.append(float(np.linalg.norm(lobe) / max(float(np.linalg.norm(fitted)), 1e-300)))
 
+    # The exact solve meets its constraints to rounding (1e-15): put the amplitudes back on them.
+    amps = np.maximum(amps, 0.0)
+    amps[:, 3] = np.minimum(amps[:, 3], 1.0)
+    amps[:, 2] = np.minimum(amps[:, 2], amps[:, 3])
     base_params = [_oren_nayar(amps[c, 0], amps[c, 1]) for c in range(channels)]
     alpha = np.exp(log_alphas)
     analytic = GGX(

@@ -78,13 +78,13 @@ from brdfrig.fit.scene import Environment, Scene
 __all__ = ["FAMILIES", "fit_pbr", "fit_dielectric", "fit_conductor", "fit_sheen", "fresnel_coefficients"]
 
 FAMILIES = ("dielectric", "conductor", "sheen")
-DEFAULT_MAX_PIXELS = 3000
+DEFAULT_MAX_PIXELS = 2000
 DEFAULT_ENV_ROWS = 64
 ALPHA_BOUNDS = (0.01, 1.0)
 """GGX alpha search interval (specular_roughness 0.1-1)."""
 FUZZ_ALPHA_BOUNDS = (0.01, 1.0)
 IOR_BOUNDS = (1.3, 2.0)
-GRID_POINTS = 9
+GRID_POINTS = 7
 LOG_XTOL = 1e-2
 IOR_XTOL = 2e-3
 DB_MAX = 0.45
@@ -315,7 +315,7 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
         bar.update(1)
     r2, amps, w = prob.solve(alpha, e, fuzz_alpha, fuzz_col(fuzz_alpha))
     base, sigma, sigma_clamped, color_clamped = _base_params(amps)
-    kw = dict(base_color=base, base_diffuse_roughness=sigma, specular_weight=w if coat else 0.0,
+    kw = dict(base_color=base, base_diffuse_roughness=sigma, specular_weight=min(max(w, 0.0), 1.0) if coat else 0.0,
               specular_roughness=math.sqrt(alpha), specular_ior=e, coat=coat)
     brdf = SheenBRDF(fuzz_color=np.clip(amps[:, 2], 0, 1), fuzz_roughness=math.sqrt(fuzz_alpha), **kw) if fuzz else DielectricBRDF(**kw)
     extra = {"sigma_clamped": sigma_clamped, "base_color_clamped": color_clamped,
