@@ -45,7 +45,7 @@ def register(subparsers) -> None:
                    help="linearisation of integer TIFF/JPEG frames: recover the response from the bracket "
                         "(auto for integer TIFF/JPEG), or take them as linear (default: %(default)s)")
     p.add_argument("--align", action="store_true", help="align frames by translation (median threshold bitmaps)")
-    p.add_argument("--clip-radius", type=CLIP_RADIUS.arg(), default=1, metavar="PX",
+    p.add_argument("--clip-radius", type=CLIP_RADIUS.arg(), default=None, metavar="PX",
                    help="weight out every pixel within PX pixels of a pixel clipped in any channel: demosaicing "
                         "spreads clipped values into neighbours that then read low (1 = bilinear demosaicing, as "
                         "for raw files; 0 = frames not demosaiced; in-camera TIFF/JPEG may need 2) "
@@ -60,120 +60,74 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _effective_times(exposures) -> list[float]:
-    """Exposure times scaled by ISO and aperture when these vary within the bracket."""
-    import math
+def _attributes(merged) -> dict:
+    """The EXR's ``brdfrig:`` provenance attributes of a merged bracket."""
+    import numpy as np
 
-    ref = exposures[0]
-    out = []
-    for e in exposures:
-        t = e.time_s
-        if not math.isnan(e.iso) and not math.isnan(ref.iso) and e.iso != ref.iso:
-            t *= e.iso / ref.iso
-        if not math.isnan(e.f_number) and not math.isnan(ref.f_number) and e.f_number != ref.f_number:
-            t *= (ref.f_number / e.f_number) ** 2
-        out.append(t)
-    return out
+    res = merged.merge
+    attributes = {
+        "kind": "merged_bracket",
+        "source_files": [f.name for f in merged.files],
+        "times_source": "--times" if merged.times_source == "given" else merged.times_source,
+        "nominal_times_s": res.nominal_times.tolist(),
+        "times_s": res.times.tolist(),
+        "weighting": res.weighting,
+        "clip_radius_px": merged.clip_radius,
+        "clip_radius_reason": merged.clip_reason,
+        "response": merged.response,
+        "response_reason": merged.response_reason,
+        "units": "frame full scale per second",
+    }
+    if merged.exposures is not None:
+        attributes["exposures"] = [{"time_s": e.time_s, "f_number": e.f_number if np.isfinite(e.f_number) else None,
+                                    "iso": e.iso if np.isfinite(e.iso) else None} for e in merged.exposures]
+    if res.shifts is not None:
+        attributes["shifts_px"] = res.shifts.tolist()
+    return attributes
 
 
-def _check_distinct(files) -> None:
-    """InputError if one file is given twice (also under another name): a bracket needs distinct frames."""
-    import os
+def _summary(merged, output) -> str:
+    import numpy as np
 
-    from brdfrig.errors import InputError
-
-    for i, a in enumerate(files):
-        for b in files[:i]:
-            if a.exists() and b.exists() and os.path.samefile(a, b):
-                raise InputError(f"{a} is given twice (also as {b}): a bracket needs distinct frames")
+    res = merged.merge
+    ok = res.radiance[res.flags == 0]
+    pos = ok[ok > 0]
+    rng = f"{pos.max() / pos.min():.3g}:1" if pos.size else "n/a"
+    changed = "" if np.array_equal(res.times, res.nominal_times) else \
+        " (times re-estimated from overlap: " + ", ".join(f"{t:.6g}" for t in res.times) + " s)"
+    h, w = res.radiance.shape[:2]
+    return (f"merged {len(merged.files)} frames -> {output} ({w}x{h}, dynamic range {rng}, "
+            f"{100 * res.saturated_fraction:.3g}% saturated in every frame){changed}\n"
+            f"response: {merged.response} ({merged.response_reason}); clip radius {merged.clip_radius} px "
+            f"({merged.clip_reason})")
 
 
 def run(args) -> int:
     import sys
     import warnings
 
-    import numpy as np
-
-    from brdfrig.errors import InputError
+    from brdfrig.hdr.bracket import MergePolicy, check_distinct, merge_files
     from brdfrig.hdr.exr import write_exr
-    from brdfrig.hdr.merge import DEFAULT_FULL_WELL, DEFAULT_READ_NOISE, merge_bracket
-    from brdfrig.hdr.raw import read_exposure, read_frame
-    from brdfrig.hdr.response import linearize, recover_response
 
     files = list(args.files)
     check_output(args.output, files, suffixes=(".exr",), writes="an OpenEXR image", no_clobber=args.no_clobber)
-    _check_distinct(files)
-    if args.times is not None:
-        if len(args.times) != len(files):
-            raise InputError(f"--times has {len(args.times)} values for {len(files)} files")
-        times = args.times
-        provenance = "--times"
-        exposures = None
-    else:
-        exposures = [read_exposure(f) for f in files]
-        times = _effective_times(exposures)
-        provenance = "metadata"
-
-    frames, linear = [], []
-    for f in files:
-        image, is_linear = read_frame(f)
-        if frames and image.shape != frames[0].shape:
-            raise InputError(f"{f} has size {image.shape[1]}x{image.shape[0]}, {files[0]} has "
-                             f"{frames[0].shape[1]}x{frames[0].shape[0]}: a bracket must have one image size")
-        for g, other in zip(files, frames):
-            if np.array_equal(image, other):
-                raise InputError(f"{f} and {g} hold identical pixels: the same frame given twice")
-        frames.append(image)
-        linear.append(is_linear)
-    response = args.response
-    if response == "auto":
-        response = "linear" if all(linear) else "recover"
-    if response == "recover":
-        if len(files) < 2:
-            raise InputError("response recovery needs at least 2 frames; use --response linear for one frame")
-        curve = recover_response(frames, times, levels=256 if all(f.suffix.lower() in (".jpg", ".jpeg")
-                                                                 for f in files) else 1024)
-        frames = [linearize(f, curve) for f in frames]
-
+    check_distinct(files)
+    policy = MergePolicy(
+        weighting=args.weighting, response=args.response, clip_radius=args.clip_radius, align=args.align,
+        reestimate_times=not args.no_reestimate,
+        **({} if args.full_well is None else {"full_well": args.full_well}),
+        **({} if args.read_noise is None else {"read_noise": args.read_noise}),
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = merge_bracket(
-            frames, times, weighting=args.weighting, saturation=1.0, clip_radius=args.clip_radius,
-            align=args.align, reestimate_times=not args.no_reestimate, names=[str(f) for f in files],
-            full_well=DEFAULT_FULL_WELL if args.full_well is None else args.full_well,
-            read_noise=DEFAULT_READ_NOISE if args.read_noise is None else args.read_noise,
-        )
+        merged = merge_files(files, policy, times=args.times)
     for w in caught:
         print(f"brdfrig merge: warning: {w.message}", file=sys.stderr)
-    no_data = ~np.isfinite(res.radiance)  # pixels shifted in from outside every aligned frame (flag 2)
-    if no_data.any():
-        res.radiance[no_data] = 0.0
-        res.variance[no_data] = 0.0
-        print(f"brdfrig merge: note: {int(no_data.sum())} pixel-channel(s) at the frame borders have no data after "
+    if merged.no_data:
+        print(f"brdfrig merge: note: {merged.no_data} pixel-channel(s) at the frame borders have no data after "
               "alignment: written as 0 with flags = 2", file=sys.stderr)
-    attributes = {
-        "kind": "merged_bracket",
-        "source_files": [f.name for f in files],
-        "times_source": provenance,
-        "nominal_times_s": res.nominal_times.tolist(),
-        "times_s": res.times.tolist(),
-        "weighting": res.weighting,
-        "clip_radius_px": args.clip_radius,
-        "response": response,
-        "units": "frame full scale per second",
-    }
-    if exposures is not None:
-        attributes["exposures"] = [{"time_s": e.time_s, "f_number": e.f_number if np.isfinite(e.f_number) else None,
-                                    "iso": e.iso if np.isfinite(e.iso) else None} for e in exposures]
-    if res.shifts is not None:
-        attributes["shifts_px"] = res.shifts.tolist()
-    write_exr(args.output, res.radiance, {"variance": res.variance, "flags": res.flags.max(axis=2)}, attributes,
-              overwrite=not args.no_clobber)
-    ok = res.radiance[res.flags == 0]
-    pos = ok[ok > 0]
-    rng = f"{pos.max() / pos.min():.3g}:1" if pos.size else "n/a"
-    changed = "" if np.array_equal(res.times, res.nominal_times) else \
-        " (times re-estimated from overlap: " + ", ".join(f"{t:.6g}" for t in res.times) + " s)"
-    print(f"merged {len(files)} frames -> {args.output} ({frames[0].shape[1]}x{frames[0].shape[0]}, "
-          f"dynamic range {rng}, {100 * res.saturated_fraction:.3g}% saturated in every frame){changed}")
+    res = merged.merge
+    write_exr(args.output, res.radiance, {"variance": res.variance, "flags": res.flags.max(axis=2)},
+              _attributes(merged), overwrite=not args.no_clobber)
+    print(_summary(merged, args.output))
     return 0

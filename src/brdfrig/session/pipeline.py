@@ -5,7 +5,7 @@ Stages (each a function, so tests and the demo can run them separately):
 1. :func:`open_verified` - open the session and verify every raw file against
    the manifest; refuse (``ValueError`` naming the files) if any fails.
 2. :func:`merge_frames` - merge each (scene, table angle) bracket with
-   ``brdfrig.hdr.merge.merge_bracket``; results are cached in ``DIR/cache`` under the
+   ``brdfrig.hdr.bracket.merge_files`` (the path of ``brdfrig merge``); results are cached in ``DIR/cache`` under the
    sha256 of the raw files' hashes, exposure times and merge settings, so a
    refit reuses every merge whose inputs did not change.
 3. :func:`scene_lighting` - unwrap the probe of each frame with
@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 #: Bump when the merge's inputs or settings change meaning: old cache entries are then ignored.
-MERGE_CACHE_VERSION = 1
+MERGE_CACHE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -131,27 +131,26 @@ def check_complete(store: SessionStore, config: SessionConfig) -> None:
         )
 
 
-#: Frame value at or above which a demosaiced sample counts as clipped (``brdfrig.hdr.merge``'s default threshold).
-CLIP_LEVEL = 0.95
-#: Pixels within this radius of a clipped pixel are weighted out by the merge: the support of the bilinear
-#: demosaicing of ``brdfrig.hdr.raw.decode_raw`` (``brdfrig.hdr.merge.merge_bracket``'s ``clip_radius``).
-CLIP_RADIUS = 1
+def merge_policy(config: SessionConfig):
+    """The ``brdfrig.hdr.bracket.MergePolicy`` of a session: the defaults of ``brdfrig merge`` with the camera's
+    noise model (``[rig.camera] full_well_e``, ``read_noise_e``)."""
+    from brdfrig.hdr.bracket import MergePolicy
+
+    cam = config.rig.camera
+    return MergePolicy(full_well=cam.full_well_e, read_noise=cam.read_noise_e)
 
 
 def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float) -> MergedFrame:
-    """Merge one bracket of camera files (exposure times from their metadata) with ``brdfrig.hdr.merge.merge_bracket``.
+    """Merge one bracket of camera files with ``brdfrig.hdr.bracket.merge_files`` (the path of ``brdfrig merge``).
 
-    Pixels within ``CLIP_RADIUS`` of a clipped pixel are weighted out by the merge
-    (demosaicing spreads clipped values into them); ``usable`` is False where
-    every exposure was dark or saturated.
+    Times come from the files' metadata; ``usable`` is False where every
+    exposure was dark or saturated.
     """
-    from brdfrig.hdr.merge import FLAG_DARK, FLAG_SATURATED, merge_bracket
-    from brdfrig.hdr.raw import read_exposure, read_frame
+    from brdfrig.hdr.bracket import MergePolicy
+    from brdfrig.hdr.bracket import merge_files as merge_bracket_files
+    from brdfrig.hdr.merge import FLAG_DARK, FLAG_SATURATED
 
-    frames = [read_frame(p)[0] for p in paths]
-    times = [read_exposure(p).time_s for p in paths]
-    merged = merge_bracket(frames, times, saturation=1.0, clip_threshold=CLIP_LEVEL, clip_radius=CLIP_RADIUS,
-                           full_well=full_well_e, read_noise=read_noise_e)
+    merged = merge_bracket_files(paths, MergePolicy(full_well=full_well_e, read_noise=read_noise_e)).merge
     usable = (merged.flags != FLAG_DARK) & (merged.flags != FLAG_SATURATED)
     return MergedFrame(merged.radiance, usable)
 
@@ -163,9 +162,8 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
 
     from brdfrig.hdr.exr import read_exr, write_exr
 
-    cam = config.rig.camera
-    settings = {"full_well": cam.full_well_e, "read_noise": cam.read_noise_e, "clip": CLIP_LEVEL,
-                "clip_radius": CLIP_RADIUS, "version": MERGE_CACHE_VERSION}
+    policy = merge_policy(config)
+    settings = {**asdict(policy), "version": MERGE_CACHE_VERSION}
     out = {}
     groups = _exposure_files(store)
     for (scene, angle), files in tqdm(groups.items(), desc="merge brackets", unit="frame", file=sys.stderr,
@@ -181,7 +179,7 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
                 continue
             except (ValueError, OSError, KeyError):
                 pass  # unreadable cache entry: merge again and replace it
-        merged = merge_files([store.root / rel for rel, _ in files], cam.full_well_e, cam.read_noise_e)
+        merged = merge_files([store.root / rel for rel, _ in files], policy.full_well, policy.read_noise)
         write_exr(cache, merged.radiance, extra_channels={"usable": merged.usable.astype(np.float32)},
                   attributes={"brdfrig_cache_key": key})
         out[(scene, angle)] = merged

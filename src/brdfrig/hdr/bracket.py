@@ -1,0 +1,207 @@
+"""Merge a bracket of camera files: the one path ``brdfrig merge`` and the session pipeline share.
+
+:func:`merge_files` reads the frames (:func:`brdfrig.hdr.raw.read_frame`) and
+their exposure metadata, computes the effective exposure times, decides the
+response (linear, or recovered from the bracket: :mod:`brdfrig.hdr.response`)
+and the clip radius, and merges with :func:`brdfrig.hdr.merge.merge_bracket`.
+Every choice it makes from the data is returned with a sentence saying why
+(:class:`BracketMerge`), for the command to print and store.
+
+Effective exposure: ``t * (ISO / ISO_0) * (N_0 / N)^2`` relative to the
+first frame, when ISO or f-number vary within the bracket (NaN when a file
+does not record them: then that factor is 1).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from brdfrig.errors import InputError
+from brdfrig.hdr.merge import DEFAULT_FULL_WELL, DEFAULT_READ_NOISE, MergeResult, merge_bracket
+from brdfrig.hdr.raw import Exposure, is_raw, read_exposure, read_frame
+
+__all__ = ["MergePolicy", "BracketMerge", "merge_files", "effective_times", "check_distinct", "RAW_CLIP_RADIUS"]
+
+#: Clip radius of frames decoded by brdfrig from raw files: the 3x3 support of the bilinear demosaicing of
+#: :func:`brdfrig.hdr.raw.decode_raw`.
+RAW_CLIP_RADIUS = 1
+
+
+@dataclass(frozen=True)
+class MergePolicy:
+    """How a bracket of files is merged.
+
+    Attributes
+    ----------
+    full_well, read_noise : float
+        Sensor noise model in electrons (full-scale signal, read-noise sigma).
+    weighting : {"optimal", "debevec"}
+        Merge weights (:func:`brdfrig.hdr.merge.merge_bracket`).
+    response : {"auto", "linear", "recover"}
+        Linearisation of integer TIFF/JPEG/PNG frames: ``"auto"`` decides
+        from the data (raw and float frames are always linear).
+    clip_radius : int or None
+        Pixels weighted out around a clipped pixel; None = by what the frames
+        are (see :func:`merge_files`).
+    clip_threshold : float
+        Fraction of full scale at and above which a sample is saturated.
+    reestimate_times : bool
+        Re-estimate exposure ratios from well-exposed overlap.
+    align : bool
+        Align the frames by translation first.
+    """
+
+    full_well: float = DEFAULT_FULL_WELL
+    read_noise: float = DEFAULT_READ_NOISE
+    weighting: str = "optimal"
+    response: str = "auto"
+    clip_radius: int | None = None
+    clip_threshold: float = 0.95
+    reestimate_times: bool = True
+    align: bool = False
+
+
+@dataclass(frozen=True)
+class BracketMerge:
+    """A merged bracket of files and the choices made on the way.
+
+    Attributes
+    ----------
+    merge : MergeResult
+        Radiance, variance, flags and times; pixels without data after
+        alignment hold radiance and variance 0 (flags 2).
+    files : list of Path
+    exposures : list of Exposure or None
+        Metadata of each file (None when the times were given).
+    times_source : {"metadata", "given"}
+    response : {"linear", "recover"}
+        Linearisation applied to the frames.
+    response_reason : str
+        Why (one sentence).
+    clip_radius : int
+        Clip radius used, in pixels.
+    clip_reason : str
+        Why (one sentence).
+    no_data : int
+        Pixel-channels without data after alignment.
+    """
+
+    merge: MergeResult
+    files: list[Path]
+    exposures: list[Exposure] | None
+    times_source: str
+    response: str
+    response_reason: str
+    clip_radius: int
+    clip_reason: str
+    no_data: int = 0
+
+
+def effective_times(exposures: Sequence[Exposure]) -> list[float]:
+    """Exposure times scaled by ISO and aperture where these vary within the bracket (relative to frame 0), s."""
+    ref = exposures[0]
+    out = []
+    for e in exposures:
+        t = e.time_s
+        if not math.isnan(e.iso) and not math.isnan(ref.iso) and e.iso != ref.iso:
+            t *= e.iso / ref.iso
+        if not math.isnan(e.f_number) and not math.isnan(ref.f_number) and e.f_number != ref.f_number:
+            t *= (ref.f_number / e.f_number) ** 2
+        out.append(t)
+    return out
+
+
+def check_distinct(files: Sequence[Path]) -> None:
+    """InputError if one file is given twice (also under another name): a bracket needs distinct frames."""
+    for i, a in enumerate(files):
+        for b in files[:i]:
+            if a.exists() and b.exists() and os.path.samefile(a, b):
+                raise InputError(f"{a} is given twice (also as {b}): a bracket needs distinct frames")
+
+
+def _read_frames(files: Sequence[Path]) -> tuple[list[np.ndarray], list[bool]]:
+    """The frames of a bracket (one size, no two identical) and whether each is linear by its format."""
+    frames, linear = [], []
+    for f in files:
+        image, is_linear = read_frame(f)
+        if frames and image.shape != frames[0].shape:
+            raise InputError(f"{f} has size {image.shape[1]}x{image.shape[0]}, {files[0]} has "
+                             f"{frames[0].shape[1]}x{frames[0].shape[0]}: a bracket must have one image size")
+        for g, other in zip(files, frames):
+            if np.array_equal(image, other):
+                raise InputError(f"{f} and {g} hold identical pixels: the same frame given twice")
+        frames.append(image)
+        linear.append(is_linear)
+    return frames, linear
+
+
+def _times(files: Sequence[Path], times: Sequence[float] | None) -> tuple[list[float], list[Exposure] | None, str]:
+    if times is not None:
+        if len(times) != len(files):
+            raise InputError(f"--times has {len(times)} values for {len(files)} files")
+        return [float(t) for t in times], None, "given"
+    exposures = [read_exposure(f) for f in files]
+    return effective_times(exposures), exposures, "metadata"
+
+
+def _response(frames, times, linear, files, policy: MergePolicy) -> tuple[list[np.ndarray], str, str]:
+    """Linearised frames, the response applied and why."""
+    from brdfrig.hdr.response import linearize, recover_response
+
+    if all(linear):
+        return frames, "linear", "raw or floating-point frames are linear"
+    if policy.response == "linear":
+        return frames, "linear", "linear response requested"
+    if len(frames) < 2:
+        raise InputError("response recovery needs at least 2 frames; use --response linear for one frame")
+    jpeg = all(f.suffix.lower() in (".jpg", ".jpeg") for f in files)
+    curve = recover_response(frames, times, levels=256 if jpeg else 1024)
+    return [linearize(f, curve) for f in frames], "recover", "response recovered from the bracket"
+
+
+def _clip_radius(files, policy: MergePolicy) -> tuple[int, str]:
+    if policy.clip_radius is not None:
+        return int(policy.clip_radius), "clip radius given"
+    return RAW_CLIP_RADIUS, "bilinear demosaicing support"
+
+
+def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergePolicy(), *,
+                times: Sequence[float] | None = None) -> BracketMerge:
+    """Read, linearise and merge one bracket of camera files (raw, TIFF, JPEG, PNG, EXR).
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The frames of one bracket (distinct files, one image size).
+    policy : MergePolicy
+        Noise model and merge settings.
+    times : sequence of float, optional
+        Exposure times in seconds, one per file; default: from the files'
+        metadata (effective times, see the module docstring).
+
+    Returns
+    -------
+    BracketMerge
+    """
+    files = [Path(p) for p in paths]
+    check_distinct(files)
+    used_times, exposures, source = _times(files, times)
+    frames, linear = _read_frames(files)
+    frames, response, response_reason = _response(frames, used_times, linear, files, policy)
+    radius, clip_reason = _clip_radius(files, policy)
+    res = merge_bracket(frames, used_times, weighting=policy.weighting, saturation=1.0,
+                        clip_threshold=policy.clip_threshold, clip_radius=radius, align=policy.align,
+                        reestimate_times=policy.reestimate_times, full_well=policy.full_well,
+                        read_noise=policy.read_noise, names=[str(f) for f in files])
+    no_data = ~np.isfinite(res.radiance)  # pixels shifted in from outside every aligned frame (flag 2)
+    if no_data.any():
+        res.radiance[no_data] = 0.0
+        res.variance[no_data] = 0.0
+    return BracketMerge(res, files, exposures, source, response, response_reason, radius, clip_reason,
+                        int(no_data.sum()))
