@@ -1,5 +1,9 @@
-"""``brdfrig render``: render a sphere with a fitted BRDF under a lat-long lighting map (relighting).
+"""``brdfrig render``: render a sphere with a fitted or measured BRDF under a lat-long lighting map (relighting).
 
+The BRDF is a file written by ``brdfrig fit``, or a measured material: a neural
+fit (``NAME.h5`` with ``NAME.json`` beside it) or a MERL table (``.binary``).
+Measured materials are rendered by the ground-truth renderer (MERL-grid table,
+sharp-lobe quadrature over the map's cells, ``brdfrig.fit.groundtruth.render_tabulated``).
 The sphere is centred in an N x N image with radius N/2 pixels, seen
 orthographically from ``v = (0, 0, 1)`` (MATH.md); pixels outside it are 0.
 Written as a linear float32 EXR (``brdfrig.hdr.exr.write_exr``, atomic).
@@ -22,7 +26,7 @@ def register(subparsers) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("brdf", help="BRDF file written by 'brdfrig fit'")
+    p.add_argument("brdf", help="BRDF file written by 'brdfrig fit', or a measured material (.h5 neural fit, MERL .binary)")
     p.add_argument("--lighting", required=True, help="lat-long environment map (EXR or .hdr)")
     p.add_argument("--size", type=SIZE.arg(), required=True,
                    help=f"image size N in pixels, N{SIZE.text()} (sphere radius N/2)")
@@ -55,14 +59,20 @@ def run(args) -> int:
     import numpy as np
 
     from brdfrig.errors import InputError
+    from pathlib import Path
+
     from brdfrig.fit.brdffile import load_brdf
+    from brdfrig.fit.measured import load_measured
     from brdfrig.hdr.exr import write_exr
     from brdfrig.hdr.sphere import sphere_pixels
     from brdfrig.lighting import read_latlong
 
     out = check_output(args.output, [args.brdf, args.lighting], suffixes=(".exr",), writes="a linear OpenEXR image",
                        no_clobber=args.no_clobber)
-    brdf, _ = load_brdf(args.brdf)
+    if Path(args.brdf).suffix in (".h5", ".binary"):
+        brdf = load_measured(args.brdf)
+    else:
+        brdf, _ = load_brdf(args.brdf)
     env = read_latlong(args.lighting, getattr(brdf, "lmax", 0))
     if env.channels != brdf.channels and brdf.channels != 1:
         raise InputError(f"{args.lighting}: lighting has {env.channels} channel(s), the BRDF {brdf.channels}")

@@ -1,4 +1,4 @@
-"""Ground-truth rendering of spheres with analytic BRDFs: brute-force quadrature, no spherical harmonics.
+"""Ground-truth rendering of spheres: brute-force quadrature, no spherical harmonics.
 
 For each surface normal ``n`` the reflected radiance toward the viewer ``v`` is
 the rendering integral evaluated as a sum over the environment samples::
@@ -19,6 +19,13 @@ The hot loop is numba-compiled, parallel over pixels, with ``fastmath`` off
 Cost is ``O(N * M * C)``: 10^4 pixels x 3 channels under a 256x128 map take ~8 s
 on two cores, so
 tests and fits use downsampled maps and pixel subsets.
+
+Measured BRDFs (:mod:`brdfrig.fit.measured`) render with the sharp-lobe
+quadrature of :mod:`brdfrig.fit.quadrature` (cells near each mirror direction
+integrated over sub-cells, MATH.md pitfall 9) and view ``v = (0, 0, 1)``:
+:func:`render_tabulated` interpolates the MERL-grid table inside the kernel;
+:func:`render_rho` evaluates any vectorised ``rho(wi, wo, n)`` in numpy (a
+network directly, or an oracle).  The analytic path above samples cell centres.
 """
 
 from __future__ import annotations
@@ -27,9 +34,11 @@ import numba
 import numpy as np
 
 from brdfrig.fit.analytic import ggx_lobe, rho_channel
+from brdfrig.fit.measured import half_diff, table_lookup
+from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
 
-__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis", "render_basis"]
+__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis", "render_basis", "render_tabulated", "render_rho"]
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
@@ -218,3 +227,106 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
     if params.shape[0] != channels:
         raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {channels}")
     return render_kernel(int(brdf.kind), np.ascontiguousarray(params), normals, dirs, weighted, view)
+
+
+# ----------------------------------------------------------------------------- measured BRDFs
+
+
+@numba.njit(cache=True, fastmath=False, parallel=True)
+def _table_kernel(log_table: np.ndarray, q, normals: np.ndarray) -> np.ndarray:
+    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of a filled log1p MERL-grid table, view +z."""
+    n_pix = normals.shape[0]
+    nc = log_table.shape[3]
+    out = np.zeros((n_pix, nc))
+    for i in numba.prange(n_pix):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        if nz <= 0.0:
+            continue
+        dirs, wrad = lobe_samples(q, nx, ny, nz, True)
+        val = np.empty(nc)
+        acc = np.zeros(nc)
+        for k in range(dirs.shape[0]):
+            wx, wy, wz = dirs[k, 0], dirs[k, 1], dirs[k, 2]
+            cos_i = nx * wx + ny * wy + nz * wz
+            th, td, pd = half_diff(wx, wy, wz, 0.0, 0.0, 1.0, nx, ny, nz)
+            table_lookup(log_table, th, td, pd, val)
+            for c in range(nc):
+                acc[c] += wrad[k, c] * val[c] * cos_i
+        for c in range(nc):
+            out[i, c] = acc[c]
+    return out
+
+
+def _lobe_inputs(normals, env: Environment, channels: int, cone_deg, subdiv):
+    """Contiguous normals and the prepared :class:`~brdfrig.fit.quadrature.LobeQuadrature`; checks channels."""
+    normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+    if env.channels != channels:
+        raise ValueError(f"BRDF has {channels} channels but the environment has {env.channels}")
+    cone = DEFAULT_CONE_DEG if cone_deg is None else cone_deg
+    s = DEFAULT_SUBDIV if subdiv is None else subdiv
+    return normals, lobe_quadrature(env, cone, s)
+
+
+def render_tabulated(brdf, normals: np.ndarray, env: Environment, cone_deg: float | None = None, subdiv: int | None = None) -> np.ndarray:
+    """Radiance toward ``v = (0, 0, 1)`` of a tabulated BRDF: sharp-lobe quadrature, table interpolated in the kernel.
+
+    Parameters
+    ----------
+    brdf : brdfrig.fit.measured.TabulatedBRDF
+        Any object with ``log_filled``, ``log1p`` of a filled ``(90, 90, 180, C)`` MERL-grid table.
+    normals : (N, 3) array_like
+        Unit surface normals (world frame).
+    env : Environment
+        Lighting; its lat-long map (when kept) is integrated over the cells near
+        each mirror direction (:mod:`brdfrig.fit.quadrature`).
+    cone_deg, subdiv : float, int, optional
+        Cone and subdivision of the quadrature (defaults
+        :data:`~brdfrig.fit.quadrature.DEFAULT_CONE_DEG`, :data:`~brdfrig.fit.quadrature.DEFAULT_SUBDIV`).
+
+    Returns
+    -------
+    (N, C) float64 linear radiance, 0 where ``n_z <= 0``.
+    """
+    log_table = np.ascontiguousarray(brdf.log_filled)
+    normals, q = _lobe_inputs(normals, env, log_table.shape[3], cone_deg, subdiv)
+    return _table_kernel(log_table, q, normals)
+
+
+def render_rho(brdf, normals: np.ndarray, env: Environment, cone_deg: float | None = None, subdiv: int | None = None,
+               block: int = 1 << 20) -> np.ndarray:
+    """Radiance toward ``v = (0, 0, 1)`` of any BRDF with vectorised ``rho(wi, wo, n) -> (M, C)``.
+
+    The same sharp-lobe quadrature as :func:`render_tabulated`, with the BRDF
+    evaluated in numpy over blocks of about ``block`` samples (several pixels at
+    a time): slower, for BRDFs without a compiled kernel (a network rendered
+    directly) and as an oracle.  Parameters and result as :func:`render_tabulated`.
+    """
+    normals, q = _lobe_inputs(normals, env, brdf.channels, cone_deg, subdiv)
+    out = np.zeros((normals.shape[0], brdf.channels))
+    view = np.array([0.0, 0.0, 1.0])
+    pending: list[tuple[int, np.ndarray, np.ndarray]] = []
+
+    def flush():
+        pix = [i for i, d, _ in pending if len(d)]
+        counts = [len(d) for _, d, _ in pending if len(d)]
+        if pix:
+            wi = np.concatenate([d for _, d, _ in pending])
+            wrad = np.concatenate([w for _, _, w in pending])
+            n = np.repeat(normals[pix], counts, axis=0)
+            terms = wrad * brdf.rho(wi, view, n) * np.einsum("ij,ij->i", wi, n)[:, None]
+            out[pix] = np.add.reduceat(terms, np.concatenate([[0], np.cumsum(counts)[:-1]]), axis=0)
+        pending.clear()
+
+    size = 0
+    for i, (nx, ny, nz) in enumerate(normals):
+        if nz <= 0.0:
+            continue
+        d, w = lobe_samples(q, float(nx), float(ny), float(nz), True)
+        pending.append((i, d, w))
+        size += len(d)
+        if size >= block:
+            flush()
+            size = 0
+    if pending:
+        flush()
+    return out
