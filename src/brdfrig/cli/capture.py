@@ -1,10 +1,10 @@
-"""``brdfrig capture run PLAN.toml --out DIR`` and ``brdfrig capture resume DIR``: shoot a session, then fit it.
+"""`brdfrig capture run PLAN.toml --out DIR` and `brdfrig capture resume DIR`: shoot a session, then fit it.
 
-``run`` validates the plan, prints it (shots, expected time, how many scenes the
-requested model needs) and shoots it into a new session directory; ``resume``
+`run` validates the plan, prints it (shots, expected time, how many scenes the
+requested model needs) and shoots it into a new session directory; `resume`
 finishes a stopped or killed session without reshooting what is stored and
 verified.  When the session is complete both run the pipeline (merge, probe,
-fit, BRDF files and figures) unless ``--no-fit``.  Both hold the session's
+fit, BRDF files and figures) unless `--no-fit`.  Both hold the session's
 writer lock: a session in use by another process is refused ("session DIR in
 use by PID N", exit 2) before anything is written.
 """

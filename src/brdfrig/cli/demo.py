@@ -1,21 +1,20 @@
-"""``brdfrig demo [--dir DIR] [--quick]``: a complete bench session on the simulated rig, end to end.
+"""`brdfrig demo [--dir DIR] [--quick]`: a complete bench session on the simulated rig, end to end.
 
 What it does, in order:
 
-1. loads ``config/sim-bench.toml`` (the turntable carries the whole rig, so each
+1. loads the shipped sim-bench session (`brdfrig template sim-bench`) (the turntable carries the whole rig, so each
    table angle is a new lighting; enough scenes for the full model) and prints
    the plan;
 2. shoots it: the GRBL firmware simulator on a pseudo-terminal driven by the
    real turntable driver, and the simulated camera writing DNG files, into a
    crash-safe session directory (interrupt it with Ctrl-C and continue with
-   ``brdfrig capture resume DIR``);
+   `brdfrig capture resume DIR`);
 3. runs the pipeline: merge, probe, fit each sample, BRDF files and figures;
 4. relights each fitted sample under a lighting the fit never saw and compares
-   with the simulator's true BRDF rendered by brute force
-   (``brdfrig.fit.groundtruth.render_groundtruth``); targets: <= 2% relative RMS for
+   with the simulator's true BRDF rendered by brute-force quadrature; targets: <= 2% relative RMS for
    diffuse samples, <= 8% for glossy ones.  Exit status 1 if a target is missed.
 
-``--quick`` shrinks the session (fewer scenes, smaller frame) for smoke tests;
+`--quick` shrinks the session (fewer scenes, smaller frame) for smoke tests;
 its numbers are not held to the targets.
 """
 

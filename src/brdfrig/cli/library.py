@@ -1,7 +1,7 @@
-"""``brdfrig library``: the catalogue of sessions and fits (add, list, show).
+"""`brdfrig library`: the catalogue of sessions and fits (add, list, show).
 
-The catalogue is one SQLite file: ``--library FILE``, else the environment variable
-BRDFRIG_LIBRARY, else a per-user file (``~/.local/share/brdfrig/library.sqlite``).
+The catalogue is one SQLite file: `--library FILE`, else the environment variable
+BRDFRIG_LIBRARY, else a per-user file (`~/.local/share/brdfrig/library.sqlite`).
 Every refit records its fits there.
 """
 

@@ -1,18 +1,18 @@
-"""``brdfrig probe``: chrome-ball probe image(s) to a calibrated lat-long environment EXR.
+"""`brdfrig probe`: chrome-ball probe image(s) to a calibrated lat-long environment EXR.
 
 Each image is a linear HDR (EXR or Radiance .hdr) of the chrome ball seen
 (nearly) orthographically.  The ball's circle is detected in every image
-unless ``--circle`` gives it (then used for all).  Several images taken at
+unless `--circle` gives it (then used for all).  Several images taken at
 different turntable rotations of the ball are registered on their circles
 and combined by a robust per-pixel statistic, which removes the ball's
-blemishes.  The ball's albedo is given (``--albedo``) or measured by the
-ratio method (``--albedo-patches``: a diffuse patch seen directly and in the
+blemishes.  The ball's albedo is given (`--albedo`) or measured by the
+ratio method (`--albedo-patches`: a diffuse patch seen directly and in the
 ball, as pixel boxes of the first image), optionally with a Fresnel model for
-chrome (``--fresnel``).
+chrome (`--fresnel`).
 
 The output is a lat-long map in OpenEXR's LatLongMap convention (MATH.md);
 directions the ball does not show (the cone behind the ball, the camera's
-reflection if masked) have zero radiance and ``mask = 0``.
+reflection if masked) have zero radiance and `mask = 0`.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def run(args) -> int:
     cone = unseen_cone_deg(rim)
     attributes = {
         "kind": "latlong_environment",
-        "source_files": [p.name for p in args.images],
+        "source_files": [str(Path(p).resolve()) for p in args.images],
         "circles_px": [list(c) for c in circles],
         "circle_px": list(circle),
         "rim": rim,
