@@ -122,3 +122,44 @@ def test_writer_refuses_garbage_and_writes_nothing(tmp_path, bad, what):
             write_exr(target, np.ones((4, 4, 3)), {"variance": var})
     assert np.all(read_image(target) == 2.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]
+
+
+def test_attributes_are_typed_and_standard_ones_are_openexrs_own(tmp_path):
+    """Numbers are double/int attributes, strings strings, only containers JSON text (read by OpenImageIO)."""
+    import OpenImageIO as oiio
+
+    attrs = {"rim": 0.97, "count": 3, "source": "/abs/a.dng", "circle": [1.5, 2.0, 3.0], "flag": True, "none": None}
+    rec709 = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+    write_exr(tmp_path / "t.exr", np.ones((4, 4, 3), np.float32), attributes=attrs,
+              standard={"expTime": 0.01, "aperture": 8.0, "isoSpeed": 200.0, "chromaticities": rec709})
+    spec = oiio.ImageInput.open(str(tmp_path / "t.exr")).spec()
+    types = {a.name: str(a.type) for a in spec.extra_attribs}
+    assert types["brdfrig:rim"] == "double" and types["brdfrig:count"] == "int"
+    assert types["brdfrig:source"] == "string" and types["brdfrig:circle"] == "string"
+    assert spec.getattribute("brdfrig:rim") == 0.97 and spec.getattribute("brdfrig:source") == "/abs/a.dng"
+    assert spec.getattribute("ExposureTime") == pytest.approx(0.01, rel=1e-7)  # expTime, OIIO's name
+    assert spec.getattribute("FNumber") == 8.0 and not any(k.startswith("brdfrig:brdfrig") for k in types)
+    _, _, meta = read_exr(tmp_path / "t.exr")
+    assert {k: meta[k] for k in attrs} == attrs and type(meta["rim"]) is float and type(meta["count"]) is int
+    assert meta["chromaticities"] == pytest.approx(rec709, abs=1e-7) and meta["isoSpeed"] == 200.0
+
+
+def test_files_of_older_brdfrig_with_json_text_attributes_still_read(tmp_path):
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "brdfrig:rim": "0.97", "brdfrig:circle": "[1, 2, 3]", "brdfrig:source": '"a.dng"'}
+    with OpenEXR.File(header, {c: np.ones((2, 2), np.float32) for c in "RGB"}) as f:
+        f.write(str(tmp_path / "old.exr"))
+    meta = read_exr(tmp_path / "old.exr")[2]
+    assert meta["rim"] == 0.97 and meta["circle"] == [1, 2, 3] and meta["source"] == "a.dng"
+
+
+@pytest.mark.parametrize("kwargs, match", [({"attributes": {"brdfrig_brdf": "x"}}, "bare name"),
+                                           ({"standard": {"expTime": -1.0}}, "'expTime' must be 1 finite positive"),
+                                           ({"standard": {"chromaticities": (0.6, 0.3)}}, "'chromaticities' must be 8"),
+                                           ({"standard": {"fNumber": 8.0}}, "unknown standard EXR attribute")])
+def test_bad_attributes_are_refused_naming_the_key(tmp_path, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        write_exr(tmp_path / "x.exr", np.ones((2, 2, 3), np.float32), **kwargs)
+    assert not (tmp_path / "x.exr").exists()

@@ -47,7 +47,9 @@ def test_merge_dng_bracket_from_metadata(tmp_path, capsys):
     assert "merged 4 frames" in capsys.readouterr().out
     rgb, extra, attrs = read_exr(out)
     assert rgb.shape == (64, 96, 3) and extra["variance"].shape == (64, 96, 3) and "flags" in extra
-    assert attrs["times_source"] == "metadata" and attrs["source_files"] == [f.name for f in files]
+    assert attrs["times_source"] == "metadata" and attrs["source_files"] == [str(f.resolve()) for f in files]
+    # Standard attributes: radiance per second (a 1 s exposure) at the first frame's f-number and ISO.
+    assert (attrs["expTime"], attrs["aperture"], attrs["isoSpeed"]) == (1.0, 8.0, 100.0)
     assert np.allclose(attrs["nominal_times_s"], TIMES, rtol=1e-6)
     # The rounded labels were detected: re-estimated ratios are the shutter's true 4x steps.
     used = np.array(attrs["times_s"])

@@ -11,7 +11,11 @@ The output EXR holds the radiance as R,G,B (frame units per second), its
 variance as ``variance.R/G/B``, the per-pixel merge flags as ``flags``
 (0 ok, 1 black in every frame, 2 saturated, or within ``--clip-radius`` of a
 clipped pixel, in every frame, or with no data after ``--align``: radiance and
-variance 0 there) and the exposure provenance as ``brdfrig:`` attributes.
+variance 0 there) and the exposure provenance as ``brdfrig:`` attributes (source
+files by absolute path).  Standard attributes: ``expTime`` = 1 s (the radiance
+is full scale per second, i.e. the equivalent of a 1 s exposure) and, where the
+first frame records them, its ``aperture`` and ``isoSpeed`` (the reference of
+the effective exposure times).
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ def _attributes(merged) -> dict:
     res = merged.merge
     attributes = {
         "kind": "merged_bracket",
-        "source_files": [f.name for f in merged.files],
+        "source_files": [str(f.resolve()) for f in merged.files],
         "times_source": "--times" if merged.times_source == "given" else merged.times_source,
         "nominal_times_s": res.nominal_times.tolist(),
         "times_s": res.times.tolist(),
@@ -84,6 +88,19 @@ def _attributes(merged) -> dict:
     if res.shifts is not None:
         attributes["shifts_px"] = res.shifts.tolist()
     return attributes
+
+
+def _standard_attributes(merged) -> dict:
+    """``expTime`` (1 s: radiance per second) and the reference frame's ``aperture`` / ``isoSpeed`` where known."""
+    import math
+
+    standard = {"expTime": 1.0}
+    if merged.exposures:
+        ref = merged.exposures[0]
+        for key, value in (("aperture", ref.f_number), ("isoSpeed", ref.iso)):
+            if math.isfinite(value) and value > 0:
+                standard[key] = float(value)
+    return standard
 
 
 def _summary(merged, output) -> str:
@@ -128,6 +145,6 @@ def run(args) -> int:
               "alignment: written as 0 with flags = 2", file=sys.stderr)
     res = merged.merge
     write_exr(args.output, res.radiance, {"variance": res.variance, "flags": res.flags.max(axis=2)},
-              _attributes(merged), overwrite=not args.no_clobber)
+              _attributes(merged), standard=_standard_attributes(merged), overwrite=not args.no_clobber)
     print(_summary(merged, args.output))
     return 0

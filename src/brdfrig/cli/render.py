@@ -80,7 +80,7 @@ def run(args) -> int:
     px = sphere_pixels((n, n), (n / 2, n / 2, n / 2), margin_px=0.0)
     image = np.zeros((n, n, env.channels), dtype=np.float32)
     image[px.rows, px.cols] = _radiance(brdf.predict(env, px.normals), args.brdf)
-    write_exr(out, image, attributes={"brdfrig_brdf": str(args.brdf), "brdfrig_lighting": str(args.lighting)},
-              overwrite=not args.no_clobber)
+    provenance = {"brdf": str(Path(args.brdf).resolve()), "lighting": str(Path(args.lighting).resolve())}
+    write_exr(out, image, attributes=provenance, overwrite=not args.no_clobber)
     print(f"wrote {out}")
     return 0

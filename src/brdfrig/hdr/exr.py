@@ -10,8 +10,14 @@ Layout of the EXR files brdfrig writes:
   (or half with ``half=True``), linear radiance;
 - extra per-pixel images as channels ``<name>`` (2-D) or ``<name>.R``,
   ``<name>.G``, ``<name>.B`` (3 channels), e.g. ``variance.R`` or ``mask``;
-- metadata as header attributes ``brdfrig:<key>`` holding JSON text (exposure
-  provenance, sphere circle, ...), plus ``brdfrig:tool_version``;
+- metadata as typed header attributes ``brdfrig:<key>``: numbers as ``double``
+  (Python float) or ``int`` attributes, strings as ``string``; lists, dicts,
+  booleans and None as JSON text, their keys listed in ``brdfrig:json_keys``
+  (files without that attribute, from older brdfrig, hold JSON text in every
+  ``brdfrig:`` attribute and are read as such); plus ``brdfrig:tool_version``;
+- standard OpenEXR attributes where known: ``expTime`` (s), ``aperture``
+  (f-number), ``isoSpeed``, ``chromaticities`` (the colour space's primaries
+  and white point, CIE 1931 xy);
 - lat-long environment maps carry the standard ``envmap = LATLONG`` attribute.
 
 The writer is atomic (:mod:`brdfrig._atomic`): a failure never leaves a
@@ -33,10 +39,15 @@ import numpy as np
 from brdfrig._atomic import temp_path
 from brdfrig.errors import InputError
 
-__all__ = ["write_exr", "read_exr", "read_image", "read_oiio", "check_output_values", "ATTRIBUTE_PREFIX"]
+__all__ = ["write_exr", "read_exr", "read_image", "read_oiio", "check_output_values", "ATTRIBUTE_PREFIX",
+           "STANDARD_ATTRIBUTES"]
 
 ATTRIBUTE_PREFIX = "brdfrig:"
+_JSON_KEYS = "json_keys"
 _RGB = ("R", "G", "B")
+#: Standard OpenEXR attributes ``write_exr`` sets, with the number of float values each holds.
+STANDARD_ATTRIBUTES = {"expTime": 1, "aperture": 1, "isoSpeed": 1, "chromaticities": 8}
+_INT32 = (-(2 ** 31), 2 ** 31 - 1)
 
 
 def _tool_version() -> str:
@@ -62,6 +73,7 @@ def write_exr(
     *,
     half: bool = False,
     latlong: bool = False,
+    standard: dict | None = None,
     overwrite: bool = True,
     allow_nonfinite: bool = False,
 ) -> Path:
@@ -77,13 +89,18 @@ def write_exr(
         Extra images, e.g. ``{"variance": var (H,W,3), "mask": m (H,W)}``;
         a 3-channel image is stored as ``name.R``, ``name.G``, ``name.B``.
     attributes : dict, optional
-        JSON-serialisable metadata, stored as ``brdfrig:<key>`` string
-        attributes; ``tool_version`` is added automatically.
+        JSON-serialisable metadata, stored as typed ``brdfrig:<key>``
+        attributes (see the module docstring); keys are bare names (no
+        ``brdfrig`` prefix); ``tool_version`` is added automatically.
     half : bool
         Store every channel as 16-bit half floats instead of float32.
     latlong : bool
         Mark the file as a lat-long environment map (``envmap`` attribute,
         OpenEXR ``LatLongMap`` convention, see MATH.md).
+    standard : dict, optional
+        Standard OpenEXR attributes, names from :data:`STANDARD_ATTRIBUTES`:
+        ``expTime`` (s), ``aperture`` (f-number), ``isoSpeed`` (positive
+        floats), ``chromaticities`` (8 floats: red, green, blue, white xy).
     overwrite : bool
         Replace an existing ``path`` (else ``FileExistsError``, nothing written).
     allow_nonfinite : bool
@@ -121,13 +138,9 @@ def write_exr(
             for name, plane in zip(_colour_names(image.shape[2], path, f"extra channel {key!r}"),
                                    np.moveaxis(image, 2, 0)):
                 channels[f"{key}.{name}"] = np.ascontiguousarray(plane, dtype=dtype)
-    header: dict = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    attrs = {"tool_version": _tool_version(), **(attributes or {})}
-    for key, value in attrs.items():
-        try:
-            header[ATTRIBUTE_PREFIX + key] = json.dumps(value)
-        except TypeError as exc:
-            raise ValueError(f"{path}: attribute {key!r} is not JSON-serialisable: {exc}") from None
+    header: dict = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+                    **_typed_attributes(path, {"tool_version": _tool_version(), **(attributes or {})}),
+                    **_standard_attributes(path, standard or {})}
     if latlong:
         header["envmap"] = OpenEXR.ENVMAP_LATLONG
 
@@ -135,6 +148,74 @@ def write_exr(
         with OpenEXR.File(header, channels) as exr:
             exr.write(str(tmp))
     return path
+
+
+def _typed_attributes(path: Path, attributes: dict) -> dict:
+    """``brdfrig:<key>`` header entries: float -> double, int -> int, str -> string, anything else JSON text."""
+    header, json_keys = {}, []
+    for key, value in attributes.items():
+        if key.startswith(("brdfrig:", "brdfrig_")) or key == _JSON_KEYS:
+            raise ValueError(f"{path}: attribute key {key!r}: give the bare name, the writer adds {ATTRIBUTE_PREFIX!r}")
+        if isinstance(value, (bool, np.bool_)) or value is None:
+            value = None if value is None else bool(value)
+        elif isinstance(value, (float, np.floating)):
+            header[ATTRIBUTE_PREFIX + key] = np.array([value], dtype=np.float64)  # a 'double' attribute
+            continue
+        elif isinstance(value, (int, np.integer)) and _INT32[0] <= value <= _INT32[1]:
+            header[ATTRIBUTE_PREFIX + key] = int(value)
+            continue
+        elif isinstance(value, str):
+            header[ATTRIBUTE_PREFIX + key] = value
+            continue
+        try:
+            header[ATTRIBUTE_PREFIX + key] = json.dumps(value)
+        except TypeError as exc:
+            raise ValueError(f"{path}: attribute {key!r} is not JSON-serialisable: {exc}") from None
+        json_keys.append(key)
+    header[ATTRIBUTE_PREFIX + _JSON_KEYS] = json.dumps(json_keys)
+    return header
+
+
+def _standard_attributes(path: Path, standard: dict) -> dict:
+    """The standard OpenEXR attributes (float, or a tuple of 8 floats for ``chromaticities``), checked."""
+    header = {}
+    for key, value in standard.items():
+        if key not in STANDARD_ATTRIBUTES:
+            raise ValueError(f"{path}: unknown standard EXR attribute {key!r} "
+                             f"(expected one of {', '.join(STANDARD_ATTRIBUTES)})")
+        values = np.atleast_1d(np.asarray(value, dtype=np.float64))
+        positive = key != "chromaticities"
+        if values.shape != (STANDARD_ATTRIBUTES[key],) or not np.all(np.isfinite(values)) \
+                or (positive and not values[0] > 0):
+            raise ValueError(f"{path}: EXR attribute {key!r} must be {STANDARD_ATTRIBUTES[key]} finite "
+                             f"{'positive ' if positive else ''}number(s), got {value!r}")
+        header[key] = float(values[0]) if positive else tuple(float(v) for v in values)
+    return header
+
+
+def _decode_attributes(header: dict) -> dict:
+    """The header's attributes as Python values (``brdfrig:`` prefix removed, JSON text decoded)."""
+    prefixed = {k[len(ATTRIBUTE_PREFIX):]: v for k, v in header.items() if k.startswith(ATTRIBUTE_PREFIX)}
+    if _JSON_KEYS in prefixed:
+        json_keys = set(json.loads(prefixed.pop(_JSON_KEYS)))
+    else:  # an older file: every brdfrig attribute is JSON text
+        json_keys = {k for k, v in prefixed.items() if isinstance(v, str)}
+    attributes: dict = {}
+    for key, value in prefixed.items():
+        if key in json_keys:
+            try:
+                value = json.loads(value)
+            except (TypeError, json.JSONDecodeError):
+                pass
+        elif isinstance(value, np.ndarray) and value.size == 1:
+            value = float(value.reshape(-1)[0])
+        attributes[key] = value
+    for key, value in header.items():
+        if key.startswith(ATTRIBUTE_PREFIX):
+            continue
+        if isinstance(value, (str, int, float)) or key == "chromaticities":
+            attributes[key] = value
+    return attributes
 
 
 def check_output_values(image: np.ndarray, path, what: str, *, nonnegative: bool = False) -> None:
@@ -182,8 +263,9 @@ def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
     extra : dict of name -> (H, W) or (H, W, C) float32
         The other channels, grouped back by ``name.R/G/B``.
     attributes : dict
-        The ``brdfrig:`` attributes (JSON-decoded, prefix removed); other
-        header attributes of plain types (str, int, float) under their own names.
+        The ``brdfrig:`` attributes (typed, or JSON-decoded; prefix removed);
+        other header attributes of plain types (str, int, float) and
+        ``chromaticities`` (tuple of 8 floats) under their own names.
     """
     import OpenEXR
 
@@ -213,16 +295,7 @@ def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
                 extra[group] = np.stack([planes.pop(k) for k in keys], axis=-1)
                 break
     extra.update(planes)
-    attributes: dict = {}
-    for key, value in header.items():
-        if key.startswith(ATTRIBUTE_PREFIX):
-            try:
-                attributes[key[len(ATTRIBUTE_PREFIX):]] = json.loads(value)
-            except (TypeError, json.JSONDecodeError):
-                attributes[key[len(ATTRIBUTE_PREFIX):]] = value
-        elif isinstance(value, (str, int, float)):
-            attributes[key] = value
-    return rgb, extra, attributes
+    return rgb, extra, _decode_attributes(header)
 
 
 def read_image(path: str | os.PathLike, *, allow_nonfinite: bool = False) -> np.ndarray:

@@ -181,7 +181,7 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
                 pass  # unreadable cache entry: merge again and replace it
         merged = merge_files([store.root / rel for rel, _ in files], policy.full_well, policy.read_noise)
         write_exr(cache, merged.radiance, extra_channels={"usable": merged.usable.astype(np.float32)},
-                  attributes={"brdfrig_cache_key": key})
+                  attributes={"cache_key": key})
         out[(scene, angle)] = merged
     return out
 
