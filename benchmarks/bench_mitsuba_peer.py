@@ -1,6 +1,6 @@
 """Benchmark: the peer a user would pick instead of brdfrig, on measured materials.
 
-Run as ``python -m benchmarks.bench_mitsuba_peer [--materials A B ...] [--size N] [--iterations K] [--spp S]``.
+Run as ``python -m benchmarks.bench_mitsuba_peer [--materials A B ...] [--size N] [--iterations K] [--spp S] [--loss l2|log]``.
 
 For each measured material (``../shared/data/measured``, loaded with
 :func:`brdfrig.fit.measured.load_measured`, tabulated to MERL's grid and rendered by
@@ -36,7 +36,7 @@ def _image(values: np.ndarray, px, size: int) -> np.ndarray:
     return out
 
 
-def run(material: str, size: int, iterations: int, spp: int) -> dict:
+def run(material: str, size: int, iterations: int, spp: int, loss: str = "l2") -> dict:
     """Fit and relight one material; returns its row of the table."""
     path = MEASURED_DIR / (material + ("" if material.startswith("nielsen/") else "_rgb") + ".h5")
     table = tabulate(load_measured(path))
@@ -45,7 +45,7 @@ def run(material: str, size: int, iterations: int, spp: int) -> dict:
     inside = px.weights > 0
     image = _image(render_tabulated(table, px.normals, fit_env), px, size)
     truth = render_tabulated(table, px.normals[inside], relight_env)
-    params, seconds = fit_principled(image, fit_env.latlong.image, spp=spp, iterations=iterations, seed=0)
+    params, seconds = fit_principled(image, fit_env.latlong.image, spp=spp, iterations=iterations, seed=0, loss=loss)
     relit = render_principled(params, relight_env.latlong.image, size, spp=1024)[px.rows[inside], px.cols[inside]]
     err = float(np.sqrt(np.sum((relit - truth) ** 2) / np.sum(truth**2)))
     return {"material": material, "seconds": seconds, "relight_error": err, "params": params}
@@ -57,10 +57,11 @@ def main(argv=None) -> None:
     parser.add_argument("--size", type=int, default=96)
     parser.add_argument("--iterations", type=int, default=120)
     parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--loss", choices=("l2", "log"), default="l2")
     args = parser.parse_args(argv)
     rows = []
     for material in args.materials:
-        row = run(material, args.size, args.iterations, args.spp)
+        row = run(material, args.size, args.iterations, args.spp, args.loss)
         rows.append(row)
         p = row["params"]
         print(f"{material:32s} {row['seconds']:7.1f} s  relight {row['relight_error']:7.2%}  "
@@ -69,7 +70,7 @@ def main(argv=None) -> None:
     errs = [r["relight_error"] for r in rows]
     print(f"median relight error {statistics.median(errs):.2%}, worst {max(errs):.2%}, "
           f"median fit time {statistics.median(r['seconds'] for r in rows):.1f} s "
-          f"({args.size} px, {args.iterations} iterations x {args.spp} spp)")
+          f"({args.size} px, {args.iterations} iterations x {args.spp} spp, {args.loss} loss)")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ import mitsuba_scene as ms
 
 pytestmark = pytest.mark.timeout(300)
 
-TRUTH = {"base_color": [0.7, 0.3, 0.2], "roughness": 0.35, "metallic": 0.0, "specular": 0.5}
+TRUTH = {"base_color": [0.7, 0.3, 0.2], "roughness": 0.35, "metallic": 0.0, "specular": 0.5, "sheen": 0.0, "clearcoat": 0.0}
 SIZE = 32
 
 
