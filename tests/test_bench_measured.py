@@ -92,16 +92,17 @@ def test_cache_returns_the_same_array_and_rerenders_a_damaged_file(probes, tmp_p
     assert cache.misses == 6
 
 
-def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path):
+def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     if not (MEASURED / "rgl").is_dir():
         pytest.skip("../shared/data/measured is absent")
+    from brdfrig.cli.main import main
+
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "brdfrig", "bench", "--measured", "--materials",
-           "rgl/acrylic_felt_green,nielsen/cardboard", "--models", "auto,diffuse", "--size", "16", "--env-rows", "8",
-           "--relight-probes", "ennis", "--no-progress", "--out", str(out)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    text = proc.stdout
+    argv = ["bench", "--measured", "--materials", "rgl/acrylic_felt_green,nielsen/cardboard", "--models", "auto,diffuse",
+            "--size", "16", "--env-rows", "16", "--relight-probes", "ennis", "--no-progress", "--no-warm-up",
+            "--out", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
     num = r"\d+\.\d\d"
     assert re.search(rf"^rgl/acrylic_felt_green\s+{num}\s+{num}\s+\S+", text, re.M), text
     assert re.search(rf"^nielsen/cardboard\*\s+{num}\s+{num}\s+\S+", text, re.M), text
@@ -110,12 +111,15 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path):
     for name in ("errors.png", "worst.png"):
         assert (out / name).stat().st_size > 5_000
     data = json.loads((out / "measured.json").read_text())
-    assert len(data["cases"]) == 4
+    assert len(data["cases"]) == 4 and not any(c["failure"] for c in data["cases"])
     assert {c["material"] for c in data["cases"] if c["held_out"]} == {"nielsen/cardboard"}
     assert all(np.isfinite(c["errors"]["ennis"]) and c["errors"]["ennis"] >= 0 for c in data["cases"])
+    # the table's numbers are the JSON's
+    auto = next(c for c in data["cases"] if c["material"] == "nielsen/cardboard" and c["model"] == "auto")
+    assert re.search(rf"^nielsen/cardboard\*\s+{100 * auto['errors']['ennis']:.2f}\s", text, re.M)
     # a second run reads every ground truth from the cache
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0 and "0 rendered, 4 from the cache" in proc.stdout
+    assert main(argv) == 0
+    assert "0 rendered, 4 from the cache" in capsys.readouterr().out
 
 
 def test_cli_bad_input_exits_2(tmp_path):

@@ -60,6 +60,8 @@ __all__ = [
     "find_materials",
     "render_truth",
     "fit_and_relight",
+    "fit_all_and_relight",
+    "failed_case",
     "relight_case",
     "main",
 ]
@@ -122,16 +124,20 @@ class Material:
         return self.brdf
 
     def identity(self) -> bytes:
-        """Cache identity: sha256 of the file (and its ``.json`` beside it), else of the BRDF's values."""
+        """Cache identity: sha256 of the file (and its ``.json`` beside it), else of the BRDF's values, and of
+        the source of the modules that render it (:func:`_renderer_sources`)."""
         if self._identity is None:
+            h = hashlib.sha256()
+            for module in _renderer_sources(self.path is not None):
+                h.update(Path(module.__file__).read_bytes())
             if self.path is None:
-                self._identity = hashlib.sha256(brdf_identity(self.brdf)).digest()
+                h.update(brdf_identity(self.brdf))
             else:
-                h = hashlib.sha256(self.path.read_bytes())
+                h.update(self.path.read_bytes())
                 side = self.path.with_suffix(".json")
                 if side.is_file():
                     h.update(side.read_bytes())
-                self._identity = h.digest()
+            self._identity = h.digest()
         return self._identity
 
 
@@ -175,23 +181,21 @@ def _render_material(material: Material, normals: np.ndarray, env: Environment) 
     return brdf.predict(env, normals)
 
 
-def _renderer_sources():
-    """Modules whose source decides a ground-truth render (they enter the cache key)."""
-    import importlib
+def _renderer_sources(measured: bool):
+    """Modules whose source decides a ground-truth render (measured: table render; else analytic kernels)."""
+    from brdfrig.fit import analytic, groundtruth
 
-    names = ("brdfrig.fit.groundtruth", "brdfrig.fit.analytic", "brdfrig.fit.quadrature", "brdfrig.fit.measured")
-    mods = []
-    for name in names:
-        try:
-            mods.append(importlib.import_module(name))
-        except ImportError:
-            continue
-    return mods
+    if not measured:
+        return (groundtruth, analytic)
+    from brdfrig.fit import measured as measured_module
+    from brdfrig.fit import quadrature
+
+    return (groundtruth, quadrature, measured_module)
 
 
 def make_cache(directory: str | Path = DEFAULT_CACHE_DIR) -> CachedGroundTruth:
-    """The disk cache of measured-material renders in ``directory``."""
-    return CachedGroundTruth(Path(directory), render=_render_material, sources=_renderer_sources())
+    """The disk cache of :class:`Material` renders in ``directory`` (keys: :meth:`Material.identity` and the inputs)."""
+    return CachedGroundTruth(Path(directory), render=_render_material, sources=())
 
 
 @dataclass(frozen=True)
@@ -280,6 +284,10 @@ class CaseResult:
     held_out : bool
     estimate_method : str
         How the fitter obtained ``estimate``.
+    cpu_seconds : float or None
+        Process CPU time of the fit (all threads; less sensitive to other jobs than the wall clock).
+    failure : str or None
+        Why the fit raised (then the errors are NaN).
     relit : dict
         Relight probe -> (N, 3) relit radiance (not written to JSON).
     """
@@ -294,6 +302,8 @@ class CaseResult:
     estimate: float | None
     held_out: bool
     estimate_method: str = ""
+    cpu_seconds: float | None = None
+    failure: str | None = None
     relit: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
@@ -324,30 +334,80 @@ def noisy_scenes(scenes: list[Scene], noise: float, seed: int = 0) -> list[Scene
             for s in scenes]
 
 
+def _relight(truth: Truth, brdf) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Errors and relit radiance of ``brdf`` under every relight probe of ``truth``."""
+    errors, relit = {}, {}
+    for name, (env, reference) in truth.relight.items():
+        relit[name] = np.asarray(brdf.predict(env, truth.normals), dtype=np.float64)
+        errors[name] = relative_rms(relit[name], reference, truth.weights)
+    return errors, relit
+
+
+def _default_fit(scenes, model):
+    from brdfrig.fit.fitter import fit_brdf
+
+    return fit_brdf(scenes, model=model, progress=False)
+
+
+def _timed_fit(truth: Truth, model: str, noise: float, seed: int, fit):
+    scenes = noisy_scenes(truth.scenes, noise, seed)
+    t0, c0 = time.perf_counter(), time.process_time()
+    result = (fit or _default_fit)(scenes, model)
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    report = result.report.to_dict() if hasattr(result.report, "to_dict") else result.report
+    return result, report, seconds, cpu
+
+
 def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int = 0, fit=None) -> CaseResult:
     """Fit ``model`` to the truth's scenes (with ``noise``) and relight it under every relight probe.
 
     ``fit`` : callable ``(scenes, model) -> FitResult`` (default :func:`brdfrig.fit.fitter.fit_brdf`
     without progress bars); only it is timed.
     """
-    if fit is None:
-        from brdfrig.fit.fitter import fit_brdf
-
-        def fit(scenes, model):
-            return fit_brdf(scenes, model=model, progress=False)
-
-    scenes = noisy_scenes(truth.scenes, noise, seed)
-    t0 = time.perf_counter()
-    result = fit(scenes, model)
-    seconds = time.perf_counter() - t0
-    errors, relit = {}, {}
-    for name, (env, reference) in truth.relight.items():
-        relit[name] = np.asarray(result.brdf.predict(env, truth.normals), dtype=np.float64)
-        errors[name] = relative_rms(relit[name], reference, truth.weights)
-    report = result.report.to_dict() if hasattr(result.report, "to_dict") else result.report
+    result, report, seconds, cpu = _timed_fit(truth, model, noise, seed, fit)
+    errors, relit = _relight(truth, result.brdf)
     estimate, method = reported_estimate(report)
     return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
-                      float(noise), errors, seconds, estimate, truth.material.held_out, method, relit)
+                      float(noise), errors, seconds, estimate, truth.material.held_out,
+                      estimate_method=method, cpu_seconds=cpu, relit=relit)
+
+
+def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int = 0) -> list[CaseResult]:
+    """One result per model in ``models``, from ONE ``auto`` fit where possible.
+
+    ``auto`` fits every candidate on the same pixels (:attr:`brdfrig.fit.fitter.FitResult.brdfs`): a
+    model among them is relit from that fit, its ``fit_seconds`` being the candidate's own fit time
+    (the report's ``seconds``; auto's shared stages left out; ``cpu_seconds`` None) and its estimate
+    the candidate's own.  A model auto did not fit (e.g. skipped as undetermined) is fitted alone.
+    """
+    models = tuple(models)
+    out: dict[str, CaseResult] = {}
+    if "auto" in models:
+        result, report, seconds, cpu = _timed_fit(truth, "auto", noise, seed, None)
+        estimate, method = reported_estimate(report)
+        errors, relit = _relight(truth, result.brdf)
+        mat = truth.material
+        out["auto"] = CaseResult(mat.name, "auto", report["chosen_model"], truth.setup.scenes, float(noise), errors,
+                                 seconds, estimate, mat.held_out, estimate_method=method, cpu_seconds=cpu, relit=relit)
+        for name, brdf in getattr(result, "brdfs", {}).items():
+            if name in models and name != "auto":
+                cand = report["candidates"].get(name, {})
+                estimate, method = reported_estimate(cand)
+                errors, relit = _relight(truth, brdf)
+                out[name] = CaseResult(mat.name, name, name, truth.setup.scenes, float(noise), errors,
+                                       float(cand.get("seconds", math.nan)), estimate, mat.held_out, estimate_method=method,
+                                       relit=relit)
+    for name in models:
+        if name not in out:
+            out[name] = fit_and_relight(truth, name, noise=noise, seed=seed)
+    return [out[m] for m in models]
+
+
+def failed_case(truth: Truth, model: str, noise: float, exc: BaseException) -> CaseResult:
+    """The result of a fit that raised: NaN errors, ``failure`` naming the exception."""
+    return CaseResult(truth.material.name, model, "-", truth.setup.scenes, float(noise),
+                      {p: math.nan for p in truth.relight}, math.nan, None, truth.material.held_out,
+                      failure=f"{type(exc).__name__}: {exc}")
 
 
 def _as_material(material) -> Material:
@@ -403,7 +463,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--env-rows", type=int, default=64, help="lat-long rows of the probes (default: %(default)s)")
     g.add_argument("--measured-dir", type=Path, default=MEASURED_DIR, help="measured materials (default: %(default)s)")
     g.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
+    g.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                   help=f"ground-truth render cache (default: OUT/gt-cache; {DEFAULT_CACHE_DIR} is relight_case's)")
     g.add_argument("--peer", choices=["mitsuba"], default=None, help="also fit the Mitsuba principled peer")
+    g.add_argument("--no-warm-up", action="store_true",
+                   help="skip the untimed warm-up fits (the first material's fit times then include compilation)")
 
 
 def main(argv: list[str] | None = None) -> int:

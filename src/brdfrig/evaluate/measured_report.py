@@ -16,7 +16,7 @@ import numpy as np
 
 from brdfrig.evaluate.measured_run import MeasuredResult
 
-__all__ = ["summarize", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs",
+__all__ = ["summarize", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial",
            "plot_errors", "plot_worst"]
 
 AUTO = "auto"
@@ -35,10 +35,19 @@ def _groups(result: MeasuredResult):
 
 
 def _stats(values) -> dict:
-    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
+    """Median, p90, worst of the finite values; ``failed`` counts the others (failed fits, NaN)."""
+    values = [x for x in values if x is not None]
+    v = np.asarray([x for x in values if math.isfinite(x)], dtype=np.float64)
+    failed = len(values) - len(v)
     if not len(v):
-        return {"n": 0, "median": None, "p90": None, "worst": None}
-    return {"n": int(len(v)), "median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "worst": float(v.max())}
+        return {"n": 0, "failed": failed, "median": None, "p90": None, "worst": None}
+    return {"n": int(len(v)), "failed": failed, "median": float(np.median(v)), "p90": float(np.percentile(v, 90)),
+            "worst": float(v.max())}
+
+
+def _median(values) -> float | None:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.median(v)) if v else None
 
 
 def summarize(result: MeasuredResult) -> list[dict]:
@@ -54,8 +63,8 @@ def summarize(result: MeasuredResult) -> list[dict]:
                 cases = [v[model] for v in mats.values() if model in v]
                 row = {"scenes": scenes, "noise": noise, "model": model, "subset": subset,
                        **_stats([c.error for c in cases]),
-                       "fit_seconds_median": float(np.median([c.fit_seconds for c in cases])) if cases else None,
-                       "fit_seconds_total": float(sum(c.fit_seconds for c in cases))}
+                       "fit_seconds_median": _median([c.fit_seconds for c in cases]),
+                       "fit_seconds_total": float(np.nansum([c.fit_seconds for c in cases]))}
                 for probe in result.setup.relight_probes[1:]:
                     row[f"{probe}"] = _stats([c.errors.get(probe) for c in cases])
                 if model == AUTO:
@@ -68,8 +77,8 @@ def _auto_quality(mats: dict) -> dict:
     picks, estimates, n_est = 0, 0, 0
     for by_model in mats.values():
         auto = by_model.get(AUTO)
-        others = [c.error for m, c in by_model.items() if m != AUTO]
-        if auto is None:
+        others = [c.error for m, c in by_model.items() if m != AUTO and math.isfinite(c.error)]
+        if auto is None or auto.failure:
             continue
         if not others or auto.error <= PICK_RTOL * min(others) + 1e-12:
             picks += 1
@@ -84,6 +93,12 @@ def _pct(x) -> str:
     return "     -" if x is None else f"{100 * x:6.2f}"
 
 
+def _cell(case) -> str:
+    if case is None:
+        return "-"
+    return "FAIL" if case.failure else _pct(case.error)
+
+
 def format_table(result: MeasuredResult) -> str:
     """Per-material relighting errors (%, headline probe), one column per model, one block per (scenes, noise)."""
     probe = result.setup.relight_probes[0]
@@ -96,7 +111,7 @@ def format_table(result: MeasuredResult) -> str:
         lines.append(head + "  auto chose   estimate")
         for name, by_model in by_mat.items():
             held = next(iter(by_model.values())).held_out
-            cells = " ".join(f"{_pct(by_model[m].error) if m in by_model else '     -':>10}" for m in result.models)
+            cells = " ".join(f"{_cell(by_model.get(m)):>10}" for m in result.models)
             auto = by_model.get(AUTO)
             tail = "" if auto is None else f"  {auto.chosen_model[:11]:<11} {_pct(auto.estimate)}"
             lines.append(f"{name + ('*' if held else ''):<{width}} {cells}{tail}")
@@ -116,6 +131,8 @@ def format_summary(result: MeasuredResult) -> str:
             note = (f"within {PICK_RTOL}x of best on {r['auto_within_1.1x_of_best']}/{r['n']}; estimate within "
                     f"{ESTIMATE_FACTOR:g}x on {r['estimates_within_2x']}/{r['estimates_reported']} reported")
         fit_s = "-" if r["fit_seconds_median"] is None else f"{r['fit_seconds_median']:.2f}"
+        if r["failed"]:
+            note = f"{r['failed']} FAILED; " + note
         lines.append(f"{r['scenes']:>6} {r['noise']:>5g} {r['subset']:<8} {r['model'][:14]:<14} {r['n']:>3} "
                      f"{_pct(r['median']):>7} {_pct(r['p90']):>7} {_pct(r['worst']):>7} {fit_s:>6}{extra}  {note}")
     return f"Summary: relighting error (%) under {probe} (other probes: median/worst)\n" + "\n".join(lines)
@@ -129,15 +146,20 @@ def format_report(result: MeasuredResult) -> str:
             f"models {','.join(result.models)}")
     phases = ", ".join(f"{k} {v:.1f} s" for k, v in result.phases.items())
     cache = f"ground truth: {result.cache_misses} rendered, {result.cache_hits} from the cache"
-    return "\n\n".join([head, format_table(result), format_summary(result), f"Time: {phases}; {cache}"])
+    parts = [head, format_table(result), format_summary(result)]
+    failures = [f"  {c.material} {c.model} ({c.scenes} scene(s), noise {c.noise:g}): {c.failure}"
+                for c in result.cases if c.failure]
+    if failures:
+        parts.append("Failed fits:\n" + "\n".join(failures))
+    return "\n\n".join(parts + [f"Time: {phases}; {cache}"])
 
 
 def result_to_json(result: MeasuredResult) -> dict:
     """Every number of a run (cases without their images, summary, setup, phases)."""
     s = result.setup
     cases = [{"material": c.material, "model": c.model, "chosen_model": c.chosen_model, "scenes": c.scenes,
-              "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds,
-              "estimate": c.estimate, "estimate_method": c.estimate_method} for c in result.cases]
+              "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds, "cpu_seconds": c.cpu_seconds,
+              "estimate": c.estimate, "estimate_method": c.estimate_method, "failure": c.failure} for c in result.cases]
     return {"setup": {"size": s.size, "fit_probe": s.fit_probe, "relight_probes": list(s.relight_probes),
                       "env_rows": s.env_rows, "scene_counts": list(result.scene_counts), "noises": list(result.noises),
                       "models": list(result.models)},
@@ -168,7 +190,8 @@ def plot_errors(result: MeasuredResult, path: Path) -> Path:
             ax.plot(x, np.maximum(y, 1e-5), marker, label=model, **style)
         ax.set_xticks(x, [n + ("*" if next(iter(by_mat[n].values())).held_out else "") for n in names],
                       rotation=90, fontsize=6)
-        ax.set_yscale("log")
+        if any(math.isfinite(c.error) for v in by_mat.values() for c in v.values()):
+            ax.set_yscale("log")
         ax.set_ylabel("relighting error")
         ax.set_title(f"{scenes} scene(s), noise {noise:g}: fit {result.setup.fit_probe}, "
                      f"relight {result.setup.relight_probes[0]} (* held out)", fontsize=9)
@@ -215,6 +238,18 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
     return save_png(fig, path, dpi=100)
 
 
+PARTIAL_JSON = "measured.partial.json"
+
+
+def write_partial(result: MeasuredResult, out: Path) -> Path:
+    """Write the cases so far to ``out/measured.partial.json`` (same layout as ``measured.json``)."""
+    from brdfrig._atomic import write_bytes as atomic_write_bytes
+    from brdfrig.fit.brdffile import jsonable
+
+    Path(out).mkdir(parents=True, exist_ok=True)
+    return atomic_write_bytes(Path(out) / PARTIAL_JSON, json.dumps(jsonable(result_to_json(result)), indent=1).encode())
+
+
 def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
     """Write ``errors.png``, ``worst.png`` (if ``auto`` ran) and ``measured.json`` into ``out``."""
     from brdfrig.fit.brdffile import jsonable
@@ -227,4 +262,5 @@ def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
     if worst is not None:
         paths.append(worst)
     paths.append(atomic_write_bytes(out / "measured.json", json.dumps(jsonable(result_to_json(result)), indent=1).encode()))
+    (out / PARTIAL_JSON).unlink(missing_ok=True)
     return paths

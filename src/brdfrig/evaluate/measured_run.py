@@ -1,8 +1,9 @@
 """The whole measured-materials benchmark: every material x model x scene count x noise level, with progress.
 
 Per scene count, every material's ground truth is rendered (or read from the
-cache) first, then every case is fitted in a fixed order: material, noise
-level, model (``auto`` first).  One untimed warm-up fit of every model on a
+cache) first, then every material and noise level is fitted: one ``auto`` fit
+gives every candidate model (:func:`brdfrig.evaluate.measured.fit_all_and_relight`),
+models it did not fit are fitted alone.  One untimed warm-up fit of every model on a
 small subset of the first material's pixels runs before any timing (numba
 kernels load, tables get built).  The optional peer (``--peer mitsuba``:
 :mod:`brdfrig.evaluate.mitsuba_peer`) is fitted to the same pixels as one more
@@ -18,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from brdfrig.errors import InputError
-from brdfrig.evaluate.measured import (CaseResult, CaseSetup, Material, Truth, fit_and_relight, find_materials,
-                                       list_materials, make_cache, model_names, render_truth)
+from brdfrig.evaluate.measured import (CaseResult, CaseSetup, Material, Truth, failed_case, fit_all_and_relight,
+                                       fit_and_relight, find_materials, list_materials, make_cache, model_names, render_truth)
 from brdfrig.fit.scene import Scene
 
 __all__ = ["MeasuredResult", "run_measured_benchmark", "run_from_args", "PEER_PREFIX"]
@@ -64,19 +65,37 @@ def _peer_fit(name: str):
 
 
 def _warm_up(truth: Truth, models) -> None:
+    """Untimed fits of ``models`` on every WARMUP_STRIDE-th pixel of ``truth`` (compiles kernels, builds tables)."""
     sub = slice(None, None, WARMUP_STRIDE)
     scenes = [Scene(s.env, s.normals[sub], s.radiance[sub], s.weights[sub]) for s in truth.scenes[:1]]
     small = replace(truth, scenes=scenes, normals=truth.normals[sub], weights=truth.weights[sub],
                     relight={k: (e, r[sub]) for k, (e, r) in truth.relight.items()})
-    for model in models:
-        if not model.startswith(PEER_PREFIX):
-            fit_and_relight(small, model)
+    fit_all_and_relight(small, models)
+
+
+def _robust(truth: Truth, model: str, noise: float, seed: int, fit=None) -> CaseResult:
+    """:func:`fit_and_relight`, a fit that raises recorded as a failed case (the run goes on)."""
+    try:
+        return fit_and_relight(truth, model, noise=noise, seed=seed, fit=fit)
+    except Exception as exc:  # noqa: BLE001 - any model's bug must not end a long run; it is reported
+        return failed_case(truth, model, noise, exc)
+
+
+def _robust_all(truth: Truth, models, noise: float, seed: int) -> list[CaseResult]:
+    """:func:`fit_all_and_relight`, falling back to one fit per model when it raises."""
+    try:
+        return fit_all_and_relight(truth, models, noise=noise, seed=seed)
+    except Exception:  # noqa: BLE001
+        return [_robust(truth, m, noise, seed) for m in models]
 
 
 def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup = CaseSetup(), *,
                            scene_counts=(1,), noises=(0.0,), seed: int = 0, cache_dir: Path | None = None,
-                           peer: str | None = None, progress: bool = True) -> MeasuredResult:
-    """Run every case (see module docstring).  ``setup.scenes`` is replaced by each of ``scene_counts``."""
+                           peer: str | None = None, progress: bool = True, warm_up: bool = True,
+                           checkpoint=None) -> MeasuredResult:
+    """Run every case (see module docstring).  ``setup.scenes`` is replaced by each of ``scene_counts``;
+    ``warm_up=False`` skips the untimed warm-up fits; ``checkpoint(result)`` (if given) is called after
+    each material's fits with the cases so far."""
     from tqdm import tqdm
 
     models = tuple(models)
@@ -84,12 +103,9 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
     bad = [m for m in models if m not in known]
     if bad:
         raise InputError(f"unknown model(s) {bad}; the fitter offers {list(known)}")
-    fits = {m: None for m in models}
-    if peer:
-        fits[PEER_PREFIX + peer] = _peer_fit(peer)
+    peers = {PEER_PREFIX + peer: _peer_fit(peer)} if peer else {}
     cache = make_cache() if cache_dir is None else make_cache(cache_dir)
-    result = MeasuredResult([], setup, tuple(scene_counts), tuple(noises), tuple(fits), list(materials))
-    t_fit = 0.0
+    result = MeasuredResult([], setup, tuple(scene_counts), tuple(noises), models + tuple(peers), list(materials))
     for count in scene_counts:
         s = replace(setup, scenes=int(count))
         t0 = time.perf_counter()
@@ -97,22 +113,28 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
                       disable=not progress):
             result.truths[(count, m.name)] = render_truth(m, s, cache)
         result.phases[f"ground truth, {count} scene(s)"] = time.perf_counter() - t0
-        if count == scene_counts[0]:
+        if warm_up and count == scene_counts[0]:
             t0 = time.perf_counter()
-            _warm_up(result.truths[(count, materials[0].name)], models)
+            try:
+                _warm_up(result.truths[(count, materials[0].name)], models)
+            except Exception:  # noqa: BLE001 - a failing model is reported by its timed fits
+                pass
             result.phases["warm-up"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        total = len(materials) * len(noises) * len(fits)
+        total = len(materials) * len(noises) * (len(models) + len(peers))
         with tqdm(total=total, desc=f"fits ({count} scene{'s' if count > 1 else ''})", unit="fit",
                   disable=not progress) as bar:
             for m in materials:
+                truth = result.truths[(count, m.name)]
                 for noise in noises:
-                    for model, fit in fits.items():
-                        bar.set_postfix_str(f"{m.name} {model} noise={noise:g}", refresh=False)
-                        case = fit_and_relight(result.truths[(count, m.name)], model, noise=noise, seed=seed, fit=fit)
-                        result.cases.append(case)
+                    bar.set_postfix_str(f"{m.name} noise={noise:g}", refresh=False)
+                    result.cases += _robust_all(truth, models, noise, seed)
+                    bar.update(len(models))
+                    for model, fit in peers.items():
+                        result.cases.append(_robust(truth, model, noise, seed, fit))
                         bar.update()
-        t_fit += time.perf_counter() - t0
+                if checkpoint is not None:
+                    checkpoint(result)
         result.phases[f"fits, {count} scene(s)"] = time.perf_counter() - t0
     result.cache_hits, result.cache_misses = cache.hits, cache.misses
     return result
@@ -121,7 +143,7 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
 def run_from_args(args) -> int:
     """Run the benchmark from parsed options (:func:`brdfrig.evaluate.measured.add_arguments` + ``--out``,
     ``--probes``, ``--no-progress``), print the table and summary, write PNGs and JSON into ``--out``."""
-    from brdfrig.evaluate.measured_report import format_report, write_outputs
+    from brdfrig.evaluate.measured_report import format_report, write_outputs, write_partial
 
     for name, value in (("--size", args.size), ("--env-rows", args.env_rows)):
         if value < 1:
@@ -135,8 +157,9 @@ def run_from_args(args) -> int:
     setup = CaseSetup(args.size, args.fit_probe, tuple(args.relight_probes), args.env_rows, 1, args.probes)
     t0 = time.perf_counter()
     result = run_measured_benchmark(materials, models, setup, scene_counts=tuple(args.scenes), noises=tuple(args.noise),
-                                    seed=args.seed, cache_dir=Path(args.out) / "gt-cache", peer=args.peer,
-                                    progress=not args.no_progress)
+                                    seed=args.seed, cache_dir=args.cache or Path(args.out) / "gt-cache", peer=args.peer,
+                                    progress=not args.no_progress, warm_up=not args.no_warm_up,
+                                    checkpoint=lambda r: write_partial(r, Path(args.out)))
     result.phases["total"] = time.perf_counter() - t0
     print(format_report(result), flush=True)
     for path in write_outputs(result, Path(args.out)):
