@@ -78,29 +78,27 @@ def read_latlong(path, lmax: int | None = None) -> Environment:
     return environment_from_latlong(img, name=str(path))
 
 
-def environment_from_probe(image, circle, *, mask=None, name: str = "probe", **calibration) -> Environment:
-    """Environment of a mirror-ball image: the ball's valid, finite pixels as samples (``4/R^2`` sr each).
+def environment_from_probe(probe, *, mask=None, name: str = "probe", **unwrap) -> Environment:
+    """Environment of a calibrated probe (:func:`brdfrig.hdr.probe.combine_probe`): the ball's valid, finite
+    pixels as samples (``4/R^2`` sr each).
 
     Parameters
     ----------
-    image : (H, W, C) array_like
-        Linear HDR image of the chrome ball.
-    circle : (cx, cy, r)
-        Ball circle in pixels.
+    probe : brdfrig.hdr.probe.ProbeCapture
+        The (rotation-averaged) ball image, its circle and albedo.
     mask : (H, W) bool or None
         Pixels to drop (True = drop), e.g. clipped ones.
     name : str
-        What to call the image in error messages.
-    **calibration
-        ``rim``, ``camera_mask_deg``, ``albedo``, ``fresnel``, ``albedo_angle_deg`` of
-        :func:`brdfrig.hdr.probe.unwrap_probe`.
+        What to call the probe in error messages.
+    **unwrap
+        ``rim``, ``camera_mask_deg``, ``fresnel`` of :func:`brdfrig.hdr.probe.unwrap_probe`.
     """
     from brdfrig.hdr.probe import unwrap_probe
 
-    s = unwrap_probe(image, circle, mask=mask, **calibration)
+    s = unwrap_probe(probe.image, probe.circle, mask=mask, **probe.calibration(), **unwrap)
     valid = s.valid & np.all(np.isfinite(s.radiance), axis=1) & (s.solid_angle > 0)
     if not np.any(valid):
-        raise InputError(f"{name}: no usable mirror-ball pixel inside circle {tuple(circle)}")
+        raise ValueError(f"{name}: no usable mirror-ball pixel inside circle {tuple(probe.circle)}")
     return Environment(np.asarray(s.dirs[valid], np.float64), np.asarray(s.radiance[valid], np.float64),
                        np.asarray(s.solid_angle[valid], np.float64))
 

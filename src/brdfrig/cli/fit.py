@@ -8,7 +8,9 @@ from a mirror-ball image instead (circle auto-detected, unwrapped by
 unless ``--circle cx,cy,r`` is given.  Pixels within ``brdfrig.hdr.sphere``'s default
 limb margin get weight 0, and the fitter ignores normals beyond 80 degrees from
 the view (``brdfrig.fit.fitter``).  Prints the identifiability report and the fit
-statistics; writes the versioned BRDF file (``brdfrig.fit.brdffile``) atomically.
+statistics; writes the versioned BRDF file (``brdfrig.fit.brdffile``) atomically,
+with the colour space the input EXRs declare (``brdfrig merge --colour-space``;
+``camera`` when none does; inputs declaring different spaces are refused).
 """
 
 from __future__ import annotations
@@ -62,17 +64,16 @@ def parse_circle(text: str, option: str = "--circle") -> tuple[float, float, flo
 
 
 def _probe_environment(path, lmax: int, circle=None):
-    from brdfrig.errors import InputError
-    from brdfrig.hdr.detect import detect_sphere
     from brdfrig.hdr.exr import read_image
+    from brdfrig.hdr.probe import combine_probe
     from brdfrig.lighting import environment_from_probe
 
-    img = read_image(path)
-    circle = detect_sphere(img, name=str(path)) if circle is None else circle
+    probe = combine_probe([read_image(path)], None if circle is None else [circle], names=[str(path)])
     # The ball spans 360 degrees over its diameter 2r: r/2 pixels per band-limit half-period budget.
-    if lmax > circle[2] / 4:
-        raise InputError(f"{path}: a mirror ball of radius {circle[2]:.0f} px supports bands up to {int(circle[2] / 4)}, --lmax is {lmax}")
-    return environment_from_probe(img, circle, name=str(path))
+    if lmax > probe.circle[2] / 4:
+        raise ValueError(f"{path}: a mirror ball of radius {probe.circle[2]:.0f} px supports bands up to "
+                         f"{int(probe.circle[2] / 4)}, --lmax is {lmax}")
+    return environment_from_probe(probe, name=str(path))
 
 
 def _sample_scene(env, image_path, circle):
@@ -102,6 +103,7 @@ def run(args) -> int:
     from brdfrig.errors import InputError
     from brdfrig.fit.brdffile import jsonable, save_brdf
     from brdfrig.fit.fitter import fit_brdf
+    from brdfrig.hdr.colour import declared_colour_space
     from brdfrig.fit.report import format_report
     from brdfrig.lighting import read_latlong
     from brdfrig.orientation import check_orientation
@@ -119,6 +121,7 @@ def run(args) -> int:
     if args.report:
         report_path = check_output(args.report, sources + [out], suffixes=(".html",), writes="an HTML report",
                                    no_clobber=args.no_clobber, option="--report")
+    colour_space = declared_colour_space(sources)  # before any fitting: mixed spaces are refused
     circle = None if args.circle is None else parse_circle(args.circle)
     probe_circle = None if args.probe_circle is None else parse_circle(args.probe_circle, "--probe-circle")
     scenes, inputs, shapes, pixels = [], [], [], []
@@ -145,7 +148,7 @@ def run(args) -> int:
     for w in rep.warnings:
         print(f"warning: {w}", file=sys.stderr)
     save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]},
-              overwrite=not args.no_clobber)
+              colour_space=colour_space, overwrite=not args.no_clobber)
     print(f"wrote {out}")
     title = f"{Path(inputs[0]['image']).stem}: {result.brdf.model} fit, lmax {args.lmax}, {len(scenes)} scene(s)"
     if args.figure:

@@ -72,15 +72,7 @@ def run(args) -> int:
 
     from brdfrig.errors import InputError
     from brdfrig.hdr.exr import read_image, write_exr
-    from brdfrig.hdr.probe import (
-        CHROME_IOR,
-        DEFAULT_RIM,
-        albedo_from_patches,
-        average_rotations,
-        check_circle_in_frame,
-        probe_to_latlong,
-        unseen_cone_deg,
-    )
+    from brdfrig.hdr.probe import CHROME_IOR, DEFAULT_RIM, combine_probe, probe_to_latlong, unseen_cone_deg
 
     check_output(args.output, args.images, suffixes=(".exr",), writes="an OpenEXR lat-long map",
                  no_clobber=args.no_clobber)
@@ -89,62 +81,34 @@ def run(args) -> int:
         raise InputError(f"--width must be an even integer{WIDTH.text()}, got {args.width}")
     if args.circle is not None and not args.circle[2] > 0:
         raise InputError(f"--circle radius must be > 0, got {args.circle[2]:g}")
-
-    images = [read_image(path) for path in args.images]
-    for path, im in zip(args.images, images):
-        if im.shape != images[0].shape:
-            raise InputError(f"{path} is {im.shape[1]}x{im.shape[0]}, {args.images[0]} is "
-                             f"{images[0].shape[1]}x{images[0].shape[0]}: probe captures must have one size")
-    circles = []
-    for path, im in zip(args.images, images):
-        if args.circle is not None:
-            circle = tuple(args.circle)
-        else:
-            from brdfrig.hdr.detect import detect_sphere
-
-            circle = detect_sphere(im, name=str(path))
-        circles.append(check_circle_in_frame(im.shape, circle, f"{path}: probe circle"))
-    if len(images) > 1:
-        image, circle = average_rotations(images, circles, statistic=args.statistic)
-    else:
-        image, circle = images[0], circles[0]
-
-    albedo, albedo_angle = None, 0.0
-    if args.albedo is not None:
-        albedo = np.broadcast_to(np.asarray(args.albedo, float), (image.shape[2],))
-    elif args.albedo_patches is not None:
-        direct, reflected = args.albedo_patches
-        albedo = albedo_from_patches(image, direct, reflected)
-        rx, ry = 0.5 * (reflected[0] + reflected[2]), 0.5 * (reflected[1] + reflected[3])
-        rho = np.hypot(rx - circle[0], ry - circle[1]) / circle[2]
-        if rho >= 1:
-            raise InputError(f"--albedo-patches: the reflected box centre ({rx:.1f}, {ry:.1f}) is not on the ball "
-                             f"{tuple(round(c, 2) for c in circle)}")
-        albedo_angle = float(np.degrees(np.arcsin(rho)))
+    probe = combine_probe([read_image(path) for path in args.images],
+                          None if args.circle is None else [tuple(args.circle)], names=[str(p) for p in args.images],
+                          statistic=args.statistic, albedo=args.albedo, albedo_patches=args.albedo_patches)
     fresnel = CHROME_IOR if args.fresnel else None
-    latlong, seen = probe_to_latlong(image, circle, args.width, rim=rim, camera_mask_deg=args.camera_mask,
-                                     albedo=albedo, fresnel=fresnel, albedo_angle_deg=albedo_angle)
+    latlong, seen = probe_to_latlong(probe.image, probe.circle, args.width, rim=rim, camera_mask_deg=args.camera_mask,
+                                     fresnel=fresnel, **probe.calibration())
     cone = unseen_cone_deg(rim)
+    several = len(args.images) > 1
     attributes = {
         "kind": "latlong_environment",
         "source_files": [str(Path(p).resolve()) for p in args.images],
-        "circles_px": [list(c) for c in circles],
-        "circle_px": list(circle),
+        "circles_px": [list(c) for c in probe.circles],
+        "circle_px": list(probe.circle),
         "rim": rim,
         "unseen_cone_deg": cone,
         "camera_mask_deg": args.camera_mask,
-        "albedo": None if albedo is None else [float(a) for a in albedo],
-        "albedo_angle_deg": albedo_angle,
+        "albedo": None if probe.albedo is None else [float(a) for a in probe.albedo],
+        "albedo_angle_deg": probe.albedo_angle_deg,
         "fresnel_ior": None if fresnel is None else list(fresnel),
-        "rotation_statistic": args.statistic if len(images) > 1 else None,
+        "rotation_statistic": args.statistic if several else None,
     }
     write_exr(args.output, latlong, {"mask": seen.astype(np.float32)}, attributes, latlong=True,
               overwrite=not args.no_clobber)
     unseen = 1 - float(np.mean(seen))
-    albedo_text = "1 (uncalibrated)" if albedo is None else ", ".join(f"{a:.4g}" for a in albedo)
-    print(f"probe: circle ({circle[0]:.2f}, {circle[1]:.2f}, {circle[2]:.2f}) px"
-          + (f", {len(images)} rotations combined ({args.statistic})" if len(images) > 1 else "")
-          + f", albedo {albedo_text}")
+    albedo_text = "1 (uncalibrated)" if probe.albedo is None else ", ".join(f"{a:.4g}" for a in probe.albedo)
+    c = probe.circle
+    print(f"probe: circle ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) px"
+          + (f", {len(args.images)} rotations combined ({args.statistic})" if several else "") + f", albedo {albedo_text}")
     print(f"wrote {args.output} ({args.width}x{args.width // 2} lat-long); unseen: cone of {cone:.1f} deg around "
           f"-z (behind the ball)" + (f" and {args.camera_mask:g} deg around +z (camera)" if args.camera_mask else "")
           + f", {100 * unseen:.1f}% of the map's pixels, zero radiance and mask = 0")

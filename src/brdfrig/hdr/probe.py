@@ -431,3 +431,92 @@ def probe_to_latlong(
                     for c in range(radiance.shape[2])], axis=-1)
     out[~seen] = 0.0
     return out.astype(np.float32), seen
+
+
+@dataclass(frozen=True)
+class ProbeCapture:
+    """One scene's probe, ready to unwrap: the (rotation-averaged) ball image and its calibration.
+
+    Attributes
+    ----------
+    image : (H, W, C) float64
+        Linear probe image (the robust average of the rotations when there were several).
+    circle : (cx, cy, r)
+        The ball's circle in ``image``.
+    circles : list of (cx, cy, r)
+        Each capture's circle (given or detected).
+    albedo : (C,) float64 or None
+        The ball's albedo (given, or by the ratio method), None when uncalibrated.
+    albedo_angle_deg : float
+        Angle from the view at which ``albedo`` was measured (0 when given).
+    """
+
+    image: np.ndarray
+    circle: tuple[float, float, float]
+    circles: list
+    albedo: np.ndarray | None
+    albedo_angle_deg: float = 0.0
+
+    def calibration(self) -> dict:
+        """Keyword arguments of :func:`unwrap_probe` / :func:`probe_to_latlong` for this capture's albedo."""
+        return {"albedo": self.albedo, "albedo_angle_deg": self.albedo_angle_deg}
+
+
+def combine_probe(images: Sequence[np.ndarray], circles: Sequence | None = None, *, names: Sequence[str] | None = None,
+                  statistic: str = "median", albedo=None, albedo_patches=None) -> ProbeCapture:
+    """The one path from probe captures to a calibrated probe: circles, rotation average, albedo.
+
+    Parameters
+    ----------
+    images : sequence of (H, W, C) arrays
+        Linear captures of the ball at one or more turntable rotations (same size).
+    circles : sequence of (cx, cy, r), optional
+        Each capture's circle (one circle for all is repeated); detected when None.
+    names : sequence of str, optional
+        The captures' file names, for messages.
+    statistic : {"median", "trimmed"}
+        Per-pixel statistic over rotations (:func:`average_rotations`).
+    albedo : float or (C,), optional
+        The ball's albedo, given.
+    albedo_patches : ((x0, y0, x1, y1), (x0, y0, x1, y1)), optional
+        Boxes over a diffuse patch seen directly and reflected in the ball (ratio method,
+        :func:`albedo_from_patches`), measured on the combined image.
+
+    Raises
+    ------
+    InputError
+        Captures of different sizes, a circle outside the frame, a reflected box off the ball.
+    """
+    from brdfrig.errors import InputError
+
+    names = list(names) if names is not None else [f"probe capture {k + 1}" for k in range(len(images))]
+    images = [np.asarray(im, dtype=np.float64) for im in images]
+    for name, im in zip(names, images):
+        if im.shape != images[0].shape:
+            raise InputError(f"{name} is {im.shape[1]}x{im.shape[0]}, {names[0]} is "
+                             f"{images[0].shape[1]}x{images[0].shape[0]}: probe captures must have one size")
+    if circles is None:
+        from brdfrig.hdr.detect import detect_sphere
+
+        circles = [detect_sphere(im, name=name) for name, im in zip(names, images)]
+    elif len(circles) == 1 and len(images) > 1:
+        circles = list(circles) * len(images)
+    circles = [check_circle_in_frame(im.shape, c, f"{name}: probe circle") for name, im, c in zip(names, images, circles)]
+    if len(images) > 1:
+        image, circle = average_rotations(images, circles, statistic=statistic)
+    else:
+        image, circle = images[0], circles[0]
+    angle = 0.0
+    if albedo is not None:
+        albedo = np.broadcast_to(np.asarray(albedo, float), (image.shape[2],)).copy()
+    elif albedo_patches is not None:
+        direct, reflected = albedo_patches
+        albedo = albedo_from_patches(image, direct, reflected)
+        rx, ry = 0.5 * (reflected[0] + reflected[2]), 0.5 * (reflected[1] + reflected[3])
+        rho = np.hypot(rx - circle[0], ry - circle[1]) / circle[2]
+        if rho >= 1:
+            raise InputError(f"--albedo-patches: the reflected box centre ({rx:.1f}, {ry:.1f}) is not on the ball "
+                             f"{tuple(round(c, 2) for c in circle)}")
+        angle = float(np.degrees(np.arcsin(rho)))
+    return ProbeCapture(image, tuple(float(v) for v in circle), circles, albedo, angle)
+

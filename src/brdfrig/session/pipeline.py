@@ -137,10 +137,11 @@ def merge_policy(config: SessionConfig):
     from brdfrig.hdr.bracket import MergePolicy
 
     cam = config.rig.camera
-    return MergePolicy(full_well=cam.full_well_e, read_noise=cam.read_noise_e)
+    return MergePolicy(full_well=cam.full_well_e, read_noise=cam.read_noise_e, colour_space=cam.colour_space)
 
 
-def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float) -> MergedFrame:
+def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float, colour_space: str = "camera"
+                ) -> MergedFrame:
     """Merge one bracket of camera files with ``brdfrig.hdr.bracket.merge_files`` (the path of ``brdfrig merge``).
 
     Times come from the files' metadata; ``usable`` is False where every
@@ -150,7 +151,8 @@ def merge_files(paths: list[Path], full_well_e: float, read_noise_e: float) -> M
     from brdfrig.hdr.bracket import merge_files as merge_bracket_files
     from brdfrig.hdr.merge import FLAG_DARK, FLAG_SATURATED
 
-    merged = merge_bracket_files(paths, MergePolicy(full_well=full_well_e, read_noise=read_noise_e)).merge
+    policy = MergePolicy(full_well=full_well_e, read_noise=read_noise_e, colour_space=colour_space)
+    merged = merge_bracket_files(paths, policy).merge
     usable = (merged.flags != FLAG_DARK) & (merged.flags != FLAG_SATURATED)
     return MergedFrame(merged.radiance, usable)
 
@@ -179,7 +181,8 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
                 continue
             except (ValueError, OSError, KeyError):
                 pass  # unreadable cache entry: merge again and replace it
-        merged = merge_files([store.root / rel for rel, _ in files], policy.full_well, policy.read_noise)
+        merged = merge_files([store.root / rel for rel, _ in files], policy.full_well, policy.read_noise,
+                             policy.colour_space)
         write_exr(cache, merged.radiance, extra_channels={"usable": merged.usable.astype(np.float32)},
                   attributes={"cache_key": key})
         out[(scene, angle)] = merged
@@ -188,22 +191,17 @@ def merge_frames(store: SessionStore, config: SessionConfig, *, progress: bool =
 
 def scene_lighting(config: SessionConfig, merged: dict[tuple[int, float], MergedFrame], scene: int):
     """The ``Environment`` of one scene from its probe frames (table rotations averaged robustly)."""
-    from brdfrig.hdr.probe import average_rotations
+    from brdfrig.hdr.probe import combine_probe
     from brdfrig.lighting import environment_from_probe
 
     probe = config.plan.probe
     if probe.circle is None:
-        raise ConfigError(f"[plan.probe] of {config.source} has no 'circle' = [cx, cy, r]")
-    kwargs = {"rim": probe.rim}
-    if probe.albedo is not None:
-        kwargs["albedo"] = probe.albedo
+        raise ValueError(f"[plan.probe] of {config.source} has no 'circle' = [cx, cy, r]")
     frames = [merged[(scene, a)] for a in config.table_angles(scene)]
     unusable = ~np.all([f.usable.all(axis=-1) for f in frames], axis=0)
-    if len(frames) > 1:
-        image, circle = average_rotations([f.radiance for f in frames], [probe.circle] * len(frames))
-    else:
-        image, circle = frames[0].radiance, probe.circle
-    return environment_from_probe(image, circle, mask=unusable, name=f"scene {scene} probe", **kwargs)
+    capture = combine_probe([f.radiance for f in frames], [probe.circle], albedo=probe.albedo,
+                            names=[f"scene {scene + 1} probe at {a:g} deg" for a in config.table_angles(scene)])
+    return environment_from_probe(capture, mask=unusable, rim=probe.rim, name=f"scene {scene + 1} probe")
 
 
 def sample_scenes(config: SessionConfig, merged: dict[tuple[int, float], MergedFrame], envs: list,
@@ -257,7 +255,8 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     per_sample = sample_scenes(config, merged, envs)
     results_dir = store.staging_results_dir()  # renamed to results/fit-NNN only once complete
     result = PipelineResult(results_dir, merged=len(merged), merged_from_cache=n_cached, scenes=envs)
-    stats_all = {"session": str(store.root), "fit": asdict(fit), "batch": batch_id, "samples": {}}
+    stats_all = {"session": str(store.root), "fit": asdict(fit), "batch": batch_id,
+                 "colour_space": config.rig.camera.colour_space, "samples": {}}
     for name, (scenes, pixels) in per_sample.items():
         echo(f"fitting {name}: {len(scenes)} scene(s), model {fit.model}, lmax {fit.lmax}, pmax {fit.pmax}, "
              f"solver {fit.solver}")
@@ -266,7 +265,8 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
         brdf_path = results_dir / f"{name}.brdf.json"
         report = res.report
         save_brdf(brdf_path, res.brdf, report,
-                  provenance={"session": str(store.root), "sample": name})
+                  provenance={"session": str(store.root), "sample": name},
+                  colour_space=config.rig.camera.colour_space)
         own = []
         for s in scenes:
             w = s.weights > 0
