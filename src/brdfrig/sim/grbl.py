@@ -113,6 +113,18 @@ class _Segment:
         return None if self.stall_after is not None else self.t0 + self.total / self.steps_per_s
 
 
+def _check_mechanics(steps_per_degree, backlash_deg, max_rate_deg_s, tick_s) -> None:
+    """ValueError naming the first impossible mechanical setting of a simulated table."""
+    if not steps_per_degree > 0:
+        raise ValueError(f"steps_per_degree must be > 0, got {steps_per_degree!r}")
+    if not backlash_deg >= 0:
+        raise ValueError(f"backlash_deg must be >= 0, got {backlash_deg!r}")
+    if not max_rate_deg_s > 0:
+        raise ValueError(f"max_rate_deg_s must be > 0, got {max_rate_deg_s!r}")
+    if tick_s is not None and not tick_s > 0:
+        raise ValueError(f"tick_s must be > 0 or None, got {tick_s!r}")
+
+
 class GrblSimulator:
     """GRBL 1.1 turntable controller on a pseudo-terminal, served by a background thread.
 
@@ -176,14 +188,7 @@ class GrblSimulator:
         seed: int = 0,
         tick_s: float | None = None,
     ) -> None:
-        if not steps_per_degree > 0:
-            raise ValueError(f"steps_per_degree must be > 0, got {steps_per_degree!r}")
-        if not backlash_deg >= 0:
-            raise ValueError(f"backlash_deg must be >= 0, got {backlash_deg!r}")
-        if not max_rate_deg_s > 0:
-            raise ValueError(f"max_rate_deg_s must be > 0, got {max_rate_deg_s!r}")
-        if tick_s is not None and not tick_s > 0:
-            raise ValueError(f"tick_s must be > 0 or None, got {tick_s!r}")
+        _check_mechanics(steps_per_degree, backlash_deg, max_rate_deg_s, tick_s)
         self._baud_flag = getattr(termios, f"B{baud}", None)
         if self._baud_flag is None:
             raise ValueError(f"baud {baud!r} is not a standard rate")
@@ -210,29 +215,7 @@ class GrblSimulator:
         self._rewrites: list[tuple[str, str, bool]] = []
         self._drop_patterns: list[re.Pattern] = []
         self._lock = threading.RLock()
-        # firmware settings ($N=value)
-        self._settings = {
-            0: 10.0, 22: 1.0, 23: 1.0,
-            100: float(firmware_steps_per_degree or steps_per_degree),
-            110: self.max_rate_deg_s * 60.0, 120: 1000.0, 130: 360.0,
-        }
-        # mechanics, in motor steps from the home switch
-        start = int(round(start_angle_deg * steps_per_degree))
-        self.motor = start
-        self.table = start + self.play // 2
-        self.counter_zero = start
-        self._active: _Segment | None = None
-        self._queue: deque[int] = deque()
-        self._absolute = True
-        self._feed_set = False
-        # firmware state
-        self.state = "Alarm"  # homing lock at power-up ($22=1)
-        self._critical = False  # hard alarm: everything but reset ignored
-        self._homing_done_at: float | None = None
-        self._pending_lines: deque[str] = deque()
-        self._line_buf = bytearray()
-        self._pending_event: tuple[float, str] | None = None  # (time, "alarm"|"disconnect")
-        self._reconnect_at: float | None = None
+        self._power_up(float(firmware_steps_per_degree or steps_per_degree), start_angle_deg)
         # pty and thread
         self._dir = Path(tempfile.mkdtemp(prefix="grblsim-"))
         self.port = str(self._dir / "ttyGRBL")
@@ -243,6 +226,28 @@ class GrblSimulator:
         self._thread: threading.Thread | None = None
         self._open_pty()
         self._boot_messages()
+
+    def _power_up(self, firmware_steps_per_degree: float, start_angle_deg: float) -> None:
+        """Firmware settings, mechanics (motor steps from the home switch) and state of a board just powered up."""
+        self._settings = {  # $N=value
+            0: 10.0, 22: 1.0, 23: 1.0, 100: firmware_steps_per_degree,
+            110: self.max_rate_deg_s * 60.0, 120: 1000.0, 130: 360.0,
+        }
+        start = int(round(start_angle_deg * self.steps_per_degree))
+        self.motor = start
+        self.table = start + self.play // 2
+        self.counter_zero = start
+        self._active: _Segment | None = None
+        self._queue: deque[int] = deque()
+        self._absolute = True
+        self._feed_set = False
+        self.state = "Alarm"  # homing lock at power-up ($22=1)
+        self._critical = False  # hard alarm: everything but reset ignored
+        self._homing_done_at: float | None = None
+        self._pending_lines: deque[str] = deque()
+        self._line_buf = bytearray()
+        self._pending_event: tuple[float, str] | None = None  # (time, "alarm"|"disconnect")
+        self._reconnect_at: float | None = None
 
     # -- public -----------------------------------------------------------------------------
     def start(self) -> GrblSimulator:
