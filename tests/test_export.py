@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -13,6 +14,7 @@ import pytest
 
 from brdfrig.fit.brdffile import save_brdf
 from brdfrig.fit.pbr import ConductorBRDF, DielectricBRDF
+from brdfrig.session.library import Library
 
 PLASTIC = DielectricBRDF(base_color=[0.6, 0.35, 0.2], base_diffuse_roughness=0.4, specular_weight=1.0,
                          specular_roughness=0.45, specular_ior=1.5)
@@ -28,6 +30,8 @@ def _export(tmp_path, brdf, fmt, name, *extra):
     assert r.returncode == 0, r.stderr
     record = json.loads(r.stdout)
     assert json.loads((tmp_path / (name + ".error.json")).read_text())["relative_rms"] == record["relative_rms"]
+    with Library(os.environ["BRDFRIG_LIBRARY"]) as lib:  # the test session's catalogue (tests/conftest.py)
+        assert [e["format"] for e in lib.exports(src)][:1] == [fmt]
     return out, record
 
 

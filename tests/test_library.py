@@ -39,7 +39,7 @@ def test_fits_are_recorded_once_and_filtered(tmp_path):
 def test_a_version_1_catalogue_is_migrated_with_its_rows(tmp_path):
     path = tmp_path / "old.sqlite"
     db = sqlite3.connect(path)
-    db.executescript(MIGRATIONS[1] + "PRAGMA user_version = 1;")
+    db.executescript(MIGRATIONS[1] + "PRAGMA user_version = 1;")  # a catalogue written by the first release
     db.execute("INSERT INTO sessions (root, name, samples, added) VALUES ('/s', 's', '[]', 'then')")
     db.execute("INSERT INTO fits (session_id, sample, model, brdf_path, results_dir, version, recorded) "
                "VALUES (1, 'a', 'lobe', '/s/a.json', '/s/fit-001', '0.1', 'then')")
@@ -110,3 +110,10 @@ def test_a_process_killed_mid_batch_leaves_a_consistent_catalogue(tmp_path):
     # every fit the writer reported committed is there (it prints after the commit)
     assert {f"/x/fit-{i}" for i in range(done + 1)} <= recorded
     assert len(recorded) <= done + 2
+
+
+def test_exports_are_recorded(tmp_path):
+    with Library(tmp_path / "lib.sqlite") as lib:
+        lib.record_export(tmp_path / "a.brdf.json", "merl", tmp_path / "a.binary", 0.004, "t")
+        (row,) = lib.exports(tmp_path / "a.brdf.json")
+        assert (row["format"], row["relative_rms"]) == ("merl", 0.004) and lib.exports(tmp_path / "b.json") == []

@@ -17,12 +17,15 @@ import sys
 __all__ = ["register", "run"]
 
 
+from brdfrig.cli.library import add_library_argument
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser("capture", help="shoot a capture session on the rig, or resume one",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="capture_command", required=True, metavar="ACTION")
     p_run = sub.add_parser("run", help="run a session plan into a new session directory")
-    p_run.add_argument("plan", help="session plan TOML file (e.g. config/sim-bench.toml)")
+    p_run.add_argument("plan", help="session plan TOML file (e.g. from `brdfrig template plan-bench`)")
     p_run.add_argument("--out", required=True, help="new session directory (must not exist, or be empty)")
     p_run.add_argument("--rig", help="rig TOML file whose [rig] replaces the plan's")
     p_run.add_argument("--fit", dest="fit_file", help="fit preset TOML file whose [fit] replaces the plan's")
@@ -34,6 +37,7 @@ def register(subparsers) -> None:
                        help="do not prompt between operator scenes (assume each is set up)")
         p.add_argument("--no-fit", action="store_true", help="stop after shooting; fit later with `brdfrig refit`")
         p.add_argument("--no-progress", action="store_true", help="no progress bars")
+        add_library_argument(p)
     parser.set_defaults(func=run)
 
 
@@ -79,13 +83,15 @@ def _after_shooting(args, status: str, store, echo) -> int:
     if args.no_fit:
         echo(f"fit it with `brdfrig refit {store.root}`")
         return 0
-    from brdfrig.session.pipeline import run_pipeline
-
+    from brdfrig.cli.library import open_library
     from brdfrig.errors import on_disk_full
+    from brdfrig.session.refit import record, refit_session
 
     with on_disk_full(f"the shots are stored; free some space, then run `brdfrig refit {store.root}`"):
-        result = run_pipeline(store.root, progress=progress, echo=echo)
-    echo(f"results in {result.results_dir}")
+        refit = refit_session(store.root, progress=progress, echo=echo)
+    with open_library(args) as library:
+        record(library, refit)
+    echo(f"results in {refit.results_dir}")
     return 0
 
 

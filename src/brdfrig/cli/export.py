@@ -18,6 +18,7 @@ import argparse
 from pathlib import Path
 
 from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.cli.library import add_library_argument
 from brdfrig.ranges import Range
 
 STEP = Range(0.25, 15.0)  # degrees
@@ -36,6 +37,7 @@ def register(subparsers) -> None:
                    help=f"table: grid step in degrees{STEP.text()} (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print the error record as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_library_argument(p)
     p.set_defaults(func=run)
 
 
@@ -45,7 +47,7 @@ def run(args) -> int:
     from brdfrig.errors import InputError
     from brdfrig.export.formats import SUFFIXES
     from brdfrig.export.run import export_brdf
-    from brdfrig.fit.brdffile import jsonable, open_brdf
+    from brdfrig.fit.brdffile import brdf_colour_space, jsonable, open_brdf
 
     if args.scene is not None and args.format != "mitsuba":
         raise InputError("--scene applies to --format mitsuba only")
@@ -55,8 +57,8 @@ def run(args) -> int:
     options = {"step_deg": args.step} if args.format == "table" else {}
     if args.scene:
         options["scene_env"] = str(Path(args.scene).resolve())
-    result = export_brdf(open_brdf(args.brdf), args.format, out, source=str(args.brdf),
-                         progress=not args.no_progress, **options)
+    result = export_brdf(open_brdf(args.brdf), args.format, out, source=str(Path(args.brdf).resolve()),
+                         colour_space=brdf_colour_space(args.brdf), progress=not args.no_progress, **options)
     if args.json:
         print(json.dumps(jsonable(result.to_dict()), indent=1))
         return 0

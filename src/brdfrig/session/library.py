@@ -9,7 +9,8 @@ Schema (``PRAGMA user_version`` holds its version, :data:`SCHEMA_VERSION`):
   path), its name, sample names and when it was created and registered;
 - ``fits``: one row per results directory (``results_dir`` is unique, so a fit is
   never recorded twice): session, sample, model, band limits, solver, the fit's
-  image error and relighting-error estimate, the BRDF file, brdfrig's version, when.
+  image error and relighting-error estimate, the BRDF file, brdfrig's version, when;
+- ``exports``: one row per export of a BRDF file: format, file, the error it introduces, when.
 
 Every write is one transaction; the file runs in WAL mode with a busy timeout, so
 two processes writing at once are serialised by SQLite, and a killed process
@@ -31,7 +32,7 @@ from brdfrig.errors import StoreError
 
 __all__ = ["SCHEMA_VERSION", "Library", "FitRecord", "default_library_path"]
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 MIGRATIONS: dict[int, str] = {
     # version 1: sessions and fits
@@ -64,6 +65,19 @@ MIGRATIONS: dict[int, str] = {
         ALTER TABLE fits ADD COLUMN relighting_estimate REAL;
         ALTER TABLE fits ADD COLUMN seconds REAL;
         CREATE INDEX fits_by_session ON fits(session_id, recorded);
+    """,
+    # version 3: exports of fitted BRDFs, with the error each introduces
+    3: """
+        CREATE TABLE exports (
+            id INTEGER PRIMARY KEY,
+            brdf_path TEXT NOT NULL,
+            format TEXT NOT NULL,
+            path TEXT NOT NULL,
+            relative_rms REAL,
+            version TEXT NOT NULL,
+            recorded TEXT NOT NULL,
+            UNIQUE (path, recorded)
+        );
     """,
 }
 
@@ -129,6 +143,7 @@ class Library:
         try:
             self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
             self._db.execute("PRAGMA busy_timeout = 30000")
+            self._check_version()  # before anything that writes (WAL mode rewrites the header)
             self._db.execute("PRAGMA journal_mode = WAL")
             self._db.execute("PRAGMA foreign_keys = ON")
             self._migrate()
@@ -136,12 +151,15 @@ class Library:
             raise StoreError(f"library {self.path} is not a readable brdfrig library ({exc})") from None
 
     # ------------------------------------------------------------------------------------ schema
-    def _migrate(self) -> None:
+    def _check_version(self) -> None:
         version = self._db.execute("PRAGMA user_version").fetchone()[0]
         if version > SCHEMA_VERSION:
             self._db.close()
             raise StoreError(f"library {self.path} has schema version {version}; this brdfrig reads versions "
                              f"<= {SCHEMA_VERSION}: upgrade brdfrig to use it (nothing was changed)")
+
+    def _migrate(self) -> None:
+        version = self._db.execute("PRAGMA user_version").fetchone()[0]
         for v in range(version + 1, SCHEMA_VERSION + 1):
             try:  # one transaction per step: the schema and its version change together or not at all
                 self._db.executescript(f"BEGIN IMMEDIATE; {MIGRATIONS[v]}; PRAGMA user_version = {v}; COMMIT;")
@@ -268,3 +286,21 @@ class Library:
                "LEFT JOIN fits f ON f.session_id = s.id GROUP BY s.id ORDER BY s.name, s.root")
         return [{"name": n, "root": r, "samples": json.loads(sm), "created": c, "added": a, "fits": k}
                 for n, r, sm, c, a, k in self._db.execute(sql)]
+
+    def record_export(self, brdf_path, fmt: str, path, relative_rms: float | None, version: str) -> None:
+        """Record one export of a BRDF file (format, file written, its approximation error)."""
+        with self._transaction() as db:
+            db.execute("INSERT INTO exports (brdf_path, format, path, relative_rms, version, recorded) "
+                       "VALUES (?,?,?,?,?,?)", (str(Path(brdf_path).resolve()), fmt, str(Path(path).resolve()),
+                                                relative_rms, version, _now()))
+
+    def exports(self, brdf_path=None) -> list[dict]:
+        """Recorded exports (of one BRDF file, or all), newest first."""
+        sql = "SELECT brdf_path, format, path, relative_rms, version, recorded FROM exports"
+        args = []
+        if brdf_path is not None:
+            sql += " WHERE brdf_path = ?"
+            args.append(str(Path(brdf_path).resolve()))
+        keys = ("brdf_path", "format", "path", "relative_rms", "version", "recorded")
+        return [dict(zip(keys, row)) for row in self._db.execute(sql + " ORDER BY recorded DESC, id DESC", args)]
+
