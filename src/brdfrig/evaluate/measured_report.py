@@ -27,9 +27,9 @@ ESTIMATE_FACTOR = 2.0
 
 
 def _groups(result: MeasuredResult):
-    """``(scenes, noise) -> {material: {model: CaseResult}}`` in run order."""
+    """``(scenes, noise) -> {material: {model: CaseResult}}``, materials by name."""
     out: dict = {}
-    for c in result.cases:
+    for c in sorted(result.cases, key=lambda c: c.material):
         out.setdefault((c.scenes, c.noise), {}).setdefault(c.material, {})[c.model] = c
     return out
 

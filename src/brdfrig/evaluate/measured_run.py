@@ -1,13 +1,16 @@
 """The whole measured-materials benchmark: every material x model x scene count x noise level, with progress.
 
-Per scene count, every material's ground truth is rendered (or read from the
-cache) first, then every material and noise level is fitted: one ``auto`` fit
+Per scene count and material: its ground truth is rendered (or read from the
+cache), then every noise level is fitted (materials in a fixed random order, so
+that the results so far, written to ``checkpoint``, and the progress bar's ETA are
+a fair sample of the whole run): one ``auto`` fit
 gives every candidate model (:func:`brdfrig.evaluate.measured.fit_all_and_relight`),
-models it did not fit are fitted alone.  One untimed warm-up fit of every model on a
-small subset of the first material's pixels runs before any timing (numba
+models it did not fit are fitted alone (fitter failures are recorded as failed cases).  One untimed warm-up fit of every model on a
+small subset of the first material's pixels runs before the first timed fit (numba
 kernels load, tables get built).  The optional peer (``--peer mitsuba``:
-:mod:`brdfrig.evaluate.mitsuba_peer`) is fitted to the same pixels as one more
-"model" named ``peer:mitsuba``.
+:mod:`brdfrig.evaluate.mitsuba_peer`) fits Mitsuba's ``principled`` BSDF to the
+same (noisy) pixels of the first scene, in one-scene runs only, and is relit by
+Mitsuba: one more "model" named ``peer:mitsuba``.
 """
 
 from __future__ import annotations
@@ -50,18 +53,39 @@ class MeasuredResult:
 
 
 def _peer_fit(name: str):
-    """``(scenes, model) -> FitResult`` of a peer (ImportError names what is missing)."""
+    """``truth, noise, seed -> CaseResult`` of a peer (InputError when it is not installed)."""
     if name != "mitsuba":
         raise InputError(f"unknown peer {name!r} (known: mitsuba)")
     try:
-        from brdfrig.evaluate.mitsuba_peer import fit_principled
+        import mitsuba  # noqa: F401
+
+        from brdfrig.evaluate import mitsuba_peer  # noqa: F401
     except ImportError as exc:
         raise InputError(f"--peer mitsuba needs brdfrig.evaluate.mitsuba_peer and Mitsuba 3 ({exc})") from exc
+    return _mitsuba_case
 
-    def fit(scenes, model):
-        return fit_principled(scenes)
 
-    return fit
+def _mitsuba_case(truth: Truth, noise: float, seed: int) -> CaseResult:
+    """Mitsuba's ``principled`` BSDF fitted to the first fit scene's image (:func:`~brdfrig.evaluate.mitsuba_peer.fit_principled`)
+    and relit by Mitsuba under each relight probe; ``fit_seconds`` is the peer's own fit time."""
+    from brdfrig.evaluate.measured import noisy_scenes
+    from brdfrig.evaluate.mitsuba_peer import fit_principled, render_principled
+    from brdfrig.fit.metrics import relative_rms
+
+    size = truth.setup.size
+    scene = noisy_scenes(truth.scenes[:1], noise, seed)[0]
+    image = np.zeros((size, size, 3))
+    image[truth.rows, truth.cols] = np.maximum(scene.radiance, 0.0)
+    c0 = time.process_time()
+    params, seconds = fit_principled(image, scene.env.latlong.image)
+    cpu = time.process_time() - c0
+    errors, relit = {}, {}
+    for probe, (env, reference) in truth.relight.items():
+        relit[probe] = render_principled(params, env.latlong.image, size)[truth.rows, truth.cols]
+        errors[probe] = relative_rms(relit[probe], reference, truth.weights)
+    m = truth.material
+    return CaseResult(m.name, PEER_PREFIX + "mitsuba", "principled", truth.setup.scenes, float(noise), errors, seconds,
+                      None, m.held_out, cpu_seconds=cpu, relit=relit)
 
 
 def _warm_up(truth: Truth, models) -> None:
@@ -78,6 +102,13 @@ def _robust(truth: Truth, model: str, noise: float, seed: int, fit=None) -> Case
     try:
         return fit_and_relight(truth, model, noise=noise, seed=seed, fit=fit)
     except Exception as exc:  # noqa: BLE001 - any model's bug must not end a long run; it is reported
+        return failed_case(truth, model, noise, exc)
+
+
+def _robust_peer(truth: Truth, model: str, noise: float, seed: int, peer_case) -> CaseResult:
+    try:
+        return peer_case(truth, noise, seed)
+    except Exception as exc:  # noqa: BLE001
         return failed_case(truth, model, noise, exc)
 
 
@@ -106,36 +137,34 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
     peers = {PEER_PREFIX + peer: _peer_fit(peer)} if peer else {}
     cache = make_cache() if cache_dir is None else make_cache(cache_dir)
     result = MeasuredResult([], setup, tuple(scene_counts), tuple(noises), models + tuple(peers), list(materials))
+    phases = result.phases
     for count in scene_counts:
         s = replace(setup, scenes=int(count))
-        t0 = time.perf_counter()
-        for m in tqdm(materials, desc=f"ground truth ({count} scene{'s' if count > 1 else ''})", unit="material",
-                      disable=not progress):
-            result.truths[(count, m.name)] = render_truth(m, s, cache)
-        result.phases[f"ground truth, {count} scene(s)"] = time.perf_counter() - t0
-        if warm_up and count == scene_counts[0]:
+        label = f"{count} scene{'s' if count > 1 else ''}"
+        gt_key, fit_key = f"ground truth, {label}", f"fits, {label}"
+        phases[gt_key] = phases[fit_key] = 0.0
+        # A fixed random order: results so far (and the ETA) are a fair sample of all materials.
+        order = [materials[k] for k in np.random.default_rng(0).permutation(len(materials))]
+        for i, m in enumerate(tqdm(order, desc=label, unit="material", disable=not progress)):
             t0 = time.perf_counter()
-            try:
-                _warm_up(result.truths[(count, materials[0].name)], models)
-            except Exception:  # noqa: BLE001 - a failing model is reported by its timed fits
-                pass
-            result.phases["warm-up"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        total = len(materials) * len(noises) * (len(models) + len(peers))
-        with tqdm(total=total, desc=f"fits ({count} scene{'s' if count > 1 else ''})", unit="fit",
-                  disable=not progress) as bar:
-            for m in materials:
-                truth = result.truths[(count, m.name)]
-                for noise in noises:
-                    bar.set_postfix_str(f"{m.name} noise={noise:g}", refresh=False)
-                    result.cases += _robust_all(truth, models, noise, seed)
-                    bar.update(len(models))
-                    for model, fit in peers.items():
-                        result.cases.append(_robust(truth, model, noise, seed, fit))
-                        bar.update()
-                if checkpoint is not None:
-                    checkpoint(result)
-        result.phases[f"fits, {count} scene(s)"] = time.perf_counter() - t0
+            truth = result.truths[(count, m.name)] = render_truth(m, s, cache)
+            phases[gt_key] += time.perf_counter() - t0
+            if warm_up and i == 0 and count == scene_counts[0]:
+                t0 = time.perf_counter()
+                try:
+                    _warm_up(truth, models)
+                except Exception:  # noqa: BLE001 - a failing model is reported by its timed fits
+                    pass
+                phases["warm-up"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            for noise in noises:
+                result.cases += _robust_all(truth, models, noise, seed)
+                for model, peer_case in peers.items():
+                    if count == 1:  # the peer fits one image
+                        result.cases.append(_robust_peer(truth, model, noise, seed, peer_case))
+            phases[fit_key] += time.perf_counter() - t0
+            if checkpoint is not None:
+                checkpoint(result)
     result.cache_hits, result.cache_misses = cache.hits, cache.misses
     return result
 
