@@ -90,6 +90,8 @@ def test_typo_suggests_the_key(tmp_path):
         ('backend = "sim"\n[rig.camera]', 'backend = "grbl"\n[rig.camera]', "has backend = \"grbl\" but no 'port'"),
         ("[session]", "[sesion]", "unknown key 'sesion' in [top level] of {p}; did you mean 'session'?"),
         ('name = "a"', 'name = "a b"', "key 'name' in [plan.samples] of {p} must be a non-empty name"),
+        ('[rig.camera]\nbackend = "sim"', '[rig.camera]\nbackend = "sim"\ncolour_space = "srgb"',
+         "key 'colour_space' in [rig.camera] of {p} must be one of 'camera' | 'rec709' | 'acescg', got 'srgb'"),
     ],
 )
 def test_bad_values_are_named(tmp_path, old, new, expected):
@@ -137,3 +139,13 @@ def test_fit_choices_match_the_fitter():
 
     assert set(FIT_MODELS) == set(fitter.MODELS)
     assert set(FIT_SOLVERS) == set(getattr(fitter, "SOLVERS", FIT_SOLVERS))
+
+
+def test_camera_colour_space_reaches_the_pipelines_merge(tmp_path):
+    from brdfrig.session.pipeline import merge_policy
+
+    assert merge_policy(load_session_config(write(tmp_path, BASE))).colour_space == "camera"  # the default
+    cfg = load_session_config(write(tmp_path, BASE.replace('[rig.camera]\nbackend = "sim"',
+                                                           '[rig.camera]\nbackend = "sim"\ncolour_space = "acescg"')))
+    assert cfg.rig.camera.colour_space == "acescg" and merge_policy(cfg).colour_space == "acescg"
+    assert stored_session_config(cfg.to_dict(), "session.json").rig.camera.colour_space == "acescg"

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from brdfrig.errors import InputError
 
-__all__ = ["Range", "BANDS", "EXPOSURE_S", "PIXELS", "ALBEDO", "FULL_WELL_E", "READ_NOISE_E", "BAUD",
+__all__ = ["Range", "COLOUR_SPACES", "BANDS", "EXPOSURE_S", "PIXELS", "ALBEDO", "FULL_WELL_E", "READ_NOISE_E", "BAUD",
            "STEPS_PER_DEGREE", "BACKLASH_DEG"]
 
 
@@ -100,3 +100,5 @@ READ_NOISE_E = Range(0, 1e4)  #: read noise, electrons
 BAUD = Range(300, 4_000_000, integer=True)  #: serial baud rates
 STEPS_PER_DEGREE = Range(0, 1e5, open_lo=True)  #: motor steps per table degree
 BACKLASH_DEG = Range(0, 45)  #: gear play, degrees
+#: Colour spaces of merged images and fitted BRDFs: camera RGB as recorded, linear Rec.709, ACEScg (brdfrig.hdr.colour)
+COLOUR_SPACES = ("camera", "rec709", "acescg")

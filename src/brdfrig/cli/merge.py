@@ -16,6 +16,12 @@ files by absolute path).  Standard attributes: ``expTime`` = 1 s (the radiance
 is full scale per second, i.e. the equivalent of a 1 s exposure) and, where the
 first frame records them, its ``aperture`` and ``isoSpeed`` (the reference of
 the effective exposure times).
+
+``--colour-space rec709`` or ``acescg`` converts camera RGB by the first raw
+file's colour matrix and as-shot neutral (``brdfrig.hdr.colour``; white
+balanced: a grey card reads R = G = B); the space is stored as
+``brdfrig:colour_space`` with the matrix, and the standard ``chromaticities``
+are set.  The default ``camera`` keeps camera RGB (no ``chromaticities``).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import argparse
 from pathlib import Path
 
 from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.hdr.colour import COLOUR_SPACES
 from brdfrig.ranges import EXPOSURE_S as EXPOSURE_TIME
 from brdfrig.ranges import FULL_WELL_E as FULL_WELL
 from brdfrig.ranges import READ_NOISE_E as READ_NOISE
@@ -48,6 +55,9 @@ def register(subparsers) -> None:
     p.add_argument("--response", choices=("auto", "linear", "recover"), default="auto",
                    help="linearisation of integer TIFF/JPEG frames: recover the response from the bracket "
                         "(auto for integer TIFF/JPEG), or take them as linear (default: %(default)s)")
+    p.add_argument("--colour-space", choices=COLOUR_SPACES, default="camera",
+                   help="colour space of the output: camera RGB as recorded, or linear Rec.709 / ACEScg from the "
+                        "raw files' colour matrix and white balance (default: %(default)s)")
     p.add_argument("--align", action="store_true", help="align frames by translation (median threshold bitmaps)")
     p.add_argument("--clip-radius", type=CLIP_RADIUS.arg(), default=None, metavar="PX",
                    help="weight out every pixel within PX pixels of a pixel clipped in any channel: demosaicing "
@@ -81,7 +91,10 @@ def _attributes(merged) -> dict:
         "response": merged.response,
         "response_reason": merged.response_reason,
         "units": "frame full scale per second",
+        "colour_space": merged.colour_space,
     }
+    if merged.colour_matrix is not None:
+        attributes["colour_matrix"] = np.asarray(merged.colour_matrix).tolist()
     if merged.exposures is not None:
         attributes["exposures"] = [{"time_s": e.time_s, "f_number": e.f_number if np.isfinite(e.f_number) else None,
                                     "iso": e.iso if np.isfinite(e.iso) else None} for e in merged.exposures]
@@ -91,10 +104,15 @@ def _attributes(merged) -> dict:
 
 
 def _standard_attributes(merged) -> dict:
-    """``expTime`` (1 s: radiance per second) and the reference frame's ``aperture`` / ``isoSpeed`` where known."""
+    """``expTime`` (1 s: radiance per second), the reference frame's ``aperture`` / ``isoSpeed`` where known and
+    the ``chromaticities`` of a declared colour space."""
     import math
 
+    from brdfrig.hdr.colour import chromaticities
+
     standard = {"expTime": 1.0}
+    if merged.colour_space != "camera":
+        standard["chromaticities"] = chromaticities(merged.colour_space)
     if merged.exposures:
         ref = merged.exposures[0]
         for key, value in (("aperture", ref.f_number), ("isoSpeed", ref.iso)):
@@ -116,7 +134,7 @@ def _summary(merged, output) -> str:
     return (f"merged {len(merged.files)} frames -> {output} ({w}x{h}, dynamic range {rng}, "
             f"{100 * res.saturated_fraction:.3g}% saturated in every frame){changed}\n"
             f"response: {merged.response} ({merged.response_reason}); clip radius {merged.clip_radius} px "
-            f"({merged.clip_reason})")
+            f"({merged.clip_reason}); colour space {merged.colour_space}")
 
 
 def run(args) -> int:
@@ -131,7 +149,7 @@ def run(args) -> int:
     check_distinct(files)
     policy = MergePolicy(
         weighting=args.weighting, response=args.response, clip_radius=args.clip_radius, align=args.align,
-        reestimate_times=not args.no_reestimate,
+        reestimate_times=not args.no_reestimate, colour_space=args.colour_space,
         **({} if args.full_well is None else {"full_well": args.full_well}),
         **({} if args.read_noise is None else {"read_noise": args.read_noise}),
     )

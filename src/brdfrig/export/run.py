@@ -1,7 +1,9 @@
 """Export one BRDF: choose the renderer material, write the format, measure and record the error.
 
 The error record is written beside the export as ``OUT.error.json`` (and returned): the format, the
-source, the material written (its parameters), the approximation error in rendered radiance under the
+source and its colour space (the RGB of the exported values: ``camera``, ``rec709`` or ``acescg``
+as the BRDF file records it, None for a measured material), the material written (its parameters), the
+approximation error in rendered radiance under the
 standard lightings (overall and per lighting), and the notes of the format writer.
 """
 
@@ -31,14 +33,16 @@ class ExportResult:
     per_lighting: dict
     material: dict | None
     notes: dict
+    colour_space: str | None = None
 
     def to_dict(self) -> dict:
         return {"format": self.format, "path": str(self.path), "record": str(self.record_path),
                 "relative_rms": self.relative_rms, "per_lighting": self.per_lighting, "material": self.material,
-                "notes": self.notes}
+                "notes": self.notes, "colour_space": self.colour_space}
 
 
-def export_brdf(brdf, fmt: str, out, *, source: str = "", progress: bool = False, **options) -> ExportResult:
+def export_brdf(brdf, fmt: str, out, *, source: str = "", colour_space: str | None = None, progress: bool = False,
+                **options) -> ExportResult:
     """Write ``brdf`` as ``fmt`` to ``out`` and its error record to ``out + '.error.json'`` (both atomic).
 
     Parameters
@@ -51,6 +55,8 @@ def export_brdf(brdf, fmt: str, out, *, source: str = "", progress: bool = False
         The export file (its suffix chooses CSV or NPZ for ``table``).
     source : str
         Where ``brdf`` came from (recorded).
+    colour_space : str or None
+        The RGB space of ``brdf`` (recorded; the export's values are in it).
     **options
         ``step_deg`` (table), ``scene_env`` (mitsuba: the lat-long file of a whole scene).
     """
@@ -68,7 +74,7 @@ def export_brdf(brdf, fmt: str, out, *, source: str = "", progress: bool = False
     f = fidelity(written, reference)
     record = out.with_name(out.name + ".error.json")
     result = ExportResult(fmt, out, record, f.error, f.per_lighting,
-                          None if material is None else material.to_dict(), notes)
+                          None if material is None else material.to_dict(), notes, colour_space)
     doc = {**result.to_dict(), "source": source, "fidelity": f.to_dict()}
     write_text(record, json.dumps(jsonable(doc), indent=1))
     return result

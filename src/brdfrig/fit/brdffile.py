@@ -7,6 +7,7 @@ Layout (``format`` and ``version`` are checked on reading)::
       "version": 1,
       "brdf": {...},            # the model's to_dict(): model, coefficients, band limits
       "conventions": {...},     # frames, SH basis, units (see CONVENTIONS)
+      "colour_space": "camera", # RGB of rho: "camera" (camera RGB), "rec709" or "acescg" (linear)
       "report": {...},          # identifiability, fit statistics, chosen model and why
       "provenance": {...}       # writer, time, inputs
     }
@@ -25,8 +26,10 @@ import numpy as np
 from brdfrig._atomic import write_text
 from brdfrig.errors import InputError
 from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
+from brdfrig.ranges import COLOUR_SPACES
 
-__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf", "open_brdf"]
+__all__ = ["FORMAT_NAME", "FORMAT_VERSION", "CONVENTIONS", "jsonable", "save_brdf", "load_brdf", "open_brdf",
+           "brdf_colour_space"]
 
 FORMAT_NAME = "brdfrig-brdf"
 FORMAT_VERSION = 1
@@ -77,8 +80,11 @@ def _non_finite(obj, where: str = "brdf") -> str | None:
 
 
 def save_brdf(path, brdf: FittedBRDF, report=None, provenance: dict | None = None, *,
-              overwrite: bool = True) -> Path:
+              colour_space: str = "camera", overwrite: bool = True) -> Path:
     """Write ``brdf`` and its fit ``report`` to ``path`` (JSON), atomically (``overwrite=False``: never replace a file).
+
+    ``colour_space`` is the RGB space of the images it was fitted to (one of
+    :data:`brdfrig.ranges.COLOUR_SPACES`).
 
     Returns
     -------
@@ -91,6 +97,8 @@ def save_brdf(path, brdf: FittedBRDF, report=None, provenance: dict | None = Non
         The BRDF has a NaN or infinite parameter (nothing is written).
     """
     path = Path(path)
+    if colour_space not in COLOUR_SPACES:
+        raise InputError(f"{path}: unknown colour space {colour_space!r} (expected one of {', '.join(COLOUR_SPACES)})")
     description = brdf.to_dict()
     bad = _non_finite(description)
     if bad:
@@ -100,6 +108,7 @@ def save_brdf(path, brdf: FittedBRDF, report=None, provenance: dict | None = Non
         "version": FORMAT_VERSION,
         "brdf": jsonable(description),
         "conventions": CONVENTIONS,
+        "colour_space": colour_space,
         "report": jsonable(report or {}),
         "provenance": jsonable(
             {"writer": "brdfrig.fit.brdffile", "written_utc": _dt.datetime.now(_dt.timezone.utc).isoformat()}
@@ -133,6 +142,21 @@ def load_brdf(path) -> tuple[FittedBRDF, dict]:
     except (KeyError, ValueError, TypeError, AttributeError, IndexError) as exc:
         raise InputError(f"{path}: corrupt BRDF file: {exc}") from exc
     return brdf, doc.get("report", {})
+
+
+def brdf_colour_space(path) -> str | None:
+    """The colour space a BRDF file records (``"camera"`` for files written before it was recorded); None for a
+    measured material (``.h5``, ``.binary``: its own RGB)."""
+    if Path(path).suffix.lower() in MEASURED_SUFFIXES:
+        return None
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a brdfrig BRDF file (corrupt JSON: {exc})") from exc
+    space = doc.get("colour_space", "camera") if isinstance(doc, dict) else "camera"
+    if space not in COLOUR_SPACES:
+        raise InputError(f"{path}: unknown colour_space {space!r} (expected one of {', '.join(COLOUR_SPACES)})")
+    return space
 
 
 MEASURED_SUFFIXES = (".h5", ".binary")

@@ -10,12 +10,20 @@ Every choice it makes from the data is returned with a sentence saying why
 Effective exposure: ``t * (ISO / ISO_0) * (N_0 / N)^2`` relative to the
 first frame, when ISO or f-number vary within the bracket (NaN when a file
 does not record them: then that factor is 1).
+
+Colour: the merge is in camera RGB; with ``MergePolicy.colour_space`` =
+``"rec709"`` or ``"acescg"`` the merged radiance is converted by the first raw
+file's colour matrix and as-shot neutral (:mod:`brdfrig.hdr.colour`), the
+variance by the squared matrix (channels independent), and a pixel flagged in
+any channel is flagged in all; negative values (noise or out-of-gamut colours)
+are set to 0 with a warning.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -23,6 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from brdfrig.errors import InputError
+from brdfrig.hdr.colour import convert_merged, raw_file_matrix
 from brdfrig.hdr.merge import DEFAULT_FULL_WELL, DEFAULT_READ_NOISE, MergeResult, merge_bracket
 from brdfrig.hdr.raw import Exposure, is_raw, read_exposure, read_frame
 
@@ -55,6 +64,8 @@ class MergePolicy:
         Re-estimate exposure ratios from well-exposed overlap.
     align : bool
         Align the frames by translation first.
+    colour_space : {"camera", "rec709", "acescg"}
+        Colour space of the result (``"camera"``: camera RGB, no conversion).
     """
 
     full_well: float = DEFAULT_FULL_WELL
@@ -65,6 +76,7 @@ class MergePolicy:
     clip_threshold: float = 0.95
     reestimate_times: bool = True
     align: bool = False
+    colour_space: str = "camera"
 
 
 @dataclass(frozen=True)
@@ -90,6 +102,10 @@ class BracketMerge:
         Why (one sentence).
     no_data : int
         Pixel-channels without data after alignment.
+    colour_space : str
+        Colour space of the radiance (see :class:`MergePolicy`).
+    colour_matrix : (3, 3) array or None
+        Camera RGB -> ``colour_space`` matrix applied (None for ``"camera"``).
     """
 
     merge: MergeResult
@@ -101,6 +117,8 @@ class BracketMerge:
     clip_radius: int
     clip_reason: str
     no_data: int = 0
+    colour_space: str = "camera"
+    colour_matrix: np.ndarray | None = None
 
 
 def effective_times(exposures: Sequence[Exposure]) -> list[float]:
@@ -192,6 +210,7 @@ def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergeP
     files = [Path(p) for p in paths]
     check_distinct(files)
     used_times, exposures, source = _times(files, times)
+    matrix = raw_file_matrix(files[0], policy.colour_space)
     frames, linear = _read_frames(files)
     frames, response, response_reason = _response(frames, used_times, linear, files, policy)
     radius, clip_reason = _clip_radius(files, policy)
@@ -203,5 +222,8 @@ def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergeP
     if no_data.any():
         res.radiance[no_data] = 0.0
         res.variance[no_data] = 0.0
+    if matrix is not None and (clipped := convert_merged(res.radiance, res.variance, res.flags, matrix)):
+        warnings.warn(f"{clipped} pixel-channel(s) negative after conversion to {policy.colour_space} "
+                      "(noise or colours outside its gamut): set to 0", stacklevel=2)
     return BracketMerge(res, files, exposures, source, response, response_reason, radius, clip_reason,
-                        int(no_data.sum()))
+                        int(no_data.sum()), policy.colour_space, matrix)

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from brdfrig.errors import InputError
+from brdfrig.ranges import COLOUR_SPACES
 
-__all__ = ["COLOUR_SPACES", "CameraColour", "read_camera_colour", "camera_to_space", "chromaticities", "convert"]
+__all__ = ["COLOUR_SPACES", "CameraColour", "read_camera_colour", "camera_to_space", "chromaticities", "convert",
+           "raw_file_matrix", "convert_merged", "declared_colour_space"]
 
-COLOUR_SPACES = ("camera", "rec709", "acescg")
 _COLOUR_NAMES = {"rec709": "ITU-R BT.709", "acescg": "ACEScg"}
 D65_CCT = 6504.0
 """Correlated colour temperature (K) of the calibration illuminant brdfrig assumes for ``ColorMatrix1`` (D65)."""
@@ -117,3 +118,74 @@ def convert(image: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     if img.ndim != 3 or img.shape[2] != 3:
         raise InputError(f"colour conversion needs an RGB image, got shape {img.shape}")
     return np.einsum("ij,hwj->hwi", np.asarray(matrix, np.float64), img, optimize=True).astype(np.float32)
+
+
+def raw_file_matrix(path, space: str) -> np.ndarray | None:
+    """The camera RGB -> ``space`` matrix of a raw file (None for ``"camera"``: no conversion).
+
+    Raises
+    ------
+    InputError
+        Unknown ``space``, a file that is not raw, or one without usable colour metadata.
+    """
+    from brdfrig.hdr.raw import is_raw
+
+    if space not in COLOUR_SPACES:
+        raise InputError(f"unknown colour space {space!r} (expected one of {', '.join(COLOUR_SPACES)})")
+    if space == "camera":
+        return None
+    if not is_raw(path):
+        raise InputError(f"{path}: colour space {space!r} needs raw frames (their colour matrix and neutral); "
+                         "keep the camera's colour space (--colour-space camera) for TIFF/JPEG frames")
+    return camera_to_space(read_camera_colour(path), space)
+
+
+def convert_merged(radiance: np.ndarray, variance: np.ndarray, flags: np.ndarray, matrix: np.ndarray) -> int:
+    """Convert a merged (H, W, 3) image in place: radiance by ``matrix``, variance by ``matrix**2``.
+
+    Channels are taken as independent (variance), a pixel flagged in any channel
+    is flagged in all (every output channel mixes them), and negative radiance
+    (noise, colours outside the target gamut) is set to 0.
+
+    Returns
+    -------
+    int
+        The number of pixel-channels set to 0.
+    """
+    out = convert(radiance, matrix)
+    negative = out < 0
+    out[negative] = 0.0
+    radiance[...] = out
+    variance[...] = convert(variance, np.asarray(matrix) ** 2)
+    flags[...] = flags.max(axis=2, keepdims=True)
+    return int(negative.sum())
+
+
+def declared_colour_space(paths) -> str:
+    """The colour space the EXR files among ``paths`` declare (``brdfrig:colour_space``), ``"camera"`` if none does.
+
+    Files that are not EXR, or EXRs without the attribute, declare nothing.
+
+    Raises
+    ------
+    InputError
+        If two files declare different spaces (images and lighting must share one).
+    """
+    from pathlib import Path
+
+    from brdfrig.hdr.exr import read_exr_attributes
+
+    declared: dict[str, str] = {}
+    for path in paths:
+        if Path(path).suffix.lower() == ".exr" and Path(path).is_file():
+            space = read_exr_attributes(path).get("colour_space")
+            if space is not None:
+                declared.setdefault(str(space), str(path))
+    if len(declared) > 1:
+        raise InputError("the inputs are in different colour spaces: "
+                         + ", ".join(f"{p} in {s}" for s, p in declared.items())
+                         + "; merge them all with one --colour-space")
+    space = next(iter(declared), "camera")
+    if space not in COLOUR_SPACES:
+        raise InputError(f"{declared[space]}: unknown colour_space {space!r}")
+    return space

@@ -39,7 +39,7 @@ import numpy as np
 from brdfrig._atomic import temp_path
 from brdfrig.errors import InputError
 
-__all__ = ["write_exr", "read_exr", "read_image", "read_oiio", "check_output_values", "ATTRIBUTE_PREFIX",
+__all__ = ["write_exr", "read_exr", "read_exr_attributes", "read_image", "read_oiio", "check_output_values", "ATTRIBUTE_PREFIX",
            "STANDARD_ATTRIBUTES"]
 
 ATTRIBUTE_PREFIX = "brdfrig:"
@@ -296,6 +296,21 @@ def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
                 break
     extra.update(planes)
     return rgb, extra, _decode_attributes(header)
+
+
+def read_exr_attributes(path: str | os.PathLike) -> dict:
+    """The attributes of an EXR file as :func:`read_exr` returns them, reading the header only."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such EXR file")
+    try:
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            header = dict(exr.header())
+    except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for corrupt data
+        raise InputError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
+    return _decode_attributes(header)
 
 
 def read_image(path: str | os.PathLike, *, allow_nonfinite: bool = False) -> np.ndarray:

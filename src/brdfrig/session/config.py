@@ -10,7 +10,8 @@ five top-level tables; ``brdfrig capture run PLAN.toml [--rig RIG.toml]
     [rig.turntable]      backend = "grbl" | "sim" | "none", port, baud, steps_per_degree,
                          backlash_deg, speed_deg_s, timeout_s
     [rig.camera]         backend = "gphoto2" | "watch" | "sim", iso, f_number, watch_dir,
-                         timeout_s, overhead_s, full_well_e, read_noise_e
+                         timeout_s, overhead_s, full_well_e, read_noise_e,
+                         colour_space = "camera" | "rec709" | "acescg"
     [rig.sim]            parameters of the simulated bench (seed, environment, frame scale)
     [plan]               scenes, scene_angles, probe_rotations, exposure = "auto" | [times],
                          target_snr, meter_time_s, stop_step, max_exposures, settle_s
@@ -47,6 +48,7 @@ from brdfrig.ranges import (
     BACKLASH_DEG,
     BANDS,
     BAUD,
+    COLOUR_SPACES,
     EXPOSURE_S,
     FULL_WELL_E,
     PIXELS,
@@ -111,7 +113,9 @@ class CameraConfig:
 
     ``full_well_e`` is the signal at the white level in electrons and
     ``read_noise_e`` the read noise in electrons: the SNR of a pixel collecting
-    ``s`` electrons is ``s / sqrt(s + read_noise_e**2)``.
+    ``s`` electrons is ``s / sqrt(s + read_noise_e**2)``.  ``colour_space`` is
+    the space the pipeline merges into (``brdfrig.hdr.colour``; ``"camera"``:
+    camera RGB, unconverted) and the fitted BRDFs record.
     """
 
     backend: str = "sim"
@@ -122,6 +126,7 @@ class CameraConfig:
     overhead_s: float = 0.5
     full_well_e: float = 4000.0
     read_noise_e: float = 4.0
+    colour_space: str = "camera"
 
 
 @dataclass(frozen=True)
@@ -332,6 +337,7 @@ _CAMERA_SCHEMA: dict[str, Checker] = {
     "overhead_s": _number(0, 600),
     "full_well_e": _in(FULL_WELL_E),
     "read_noise_e": _in(READ_NOISE_E),
+    "colour_space": _choice(COLOUR_SPACES),
 }
 _RIG_SCHEMA: dict[str, Checker] = {
     "carries": _choice(CARRIES),
