@@ -24,6 +24,7 @@ from brdfrig.evaluate.mitsuba_peer import fit_principled, render_principled
 from brdfrig.evaluate.probes import DEFAULT_PROBE_DIR, probe_environment
 from brdfrig.fit.groundtruth import render_tabulated
 from brdfrig.fit.measured import load_measured, tabulate
+from brdfrig.fit.metrics import relative_rms
 from brdfrig.hdr.sphere import sphere_pixels
 
 MEASURED_DIR = DEFAULT_PROBE_DIR.parents[1] / "data" / "measured"
@@ -47,7 +48,7 @@ def run(material: str, size: int, iterations: int, spp: int, loss: str = "l2") -
     truth = render_tabulated(table, px.normals[inside], relight_env)
     params, seconds = fit_principled(image, fit_env.latlong.image, spp=spp, iterations=iterations, seed=0, loss=loss)
     relit = render_principled(params, relight_env.latlong.image, size, spp=1024)[px.rows[inside], px.cols[inside]]
-    err = float(np.sqrt(np.sum((relit - truth) ** 2) / np.sum(truth**2)))
+    err = relative_rms(relit, truth)
     return {"material": material, "seconds": seconds, "relight_error": err, "params": params}
 
 

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from brdfrig.fit.metrics import relative_rms  # noqa: F401  (the tests' error measure, re-exported)
+
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 PROBE_DIR = SHARED / "data" / "probes"
 PROBE_ROWS = 32
@@ -121,9 +123,3 @@ def sphere_interior(size: int = SIZE):
     px = sphere_pixels((size, size), (size / 2, size / 2, size / 2), margin_px=LIMB_MARGIN_PX)
     keep = px.weights > 0
     return px.rows[keep], px.cols[keep], px.normals[keep]
-
-
-def relative_rms(pred: np.ndarray, ref: np.ndarray) -> float:
-    """``sqrt(sum (pred - ref)^2 / sum ref^2)`` over all entries (sphere pixels x channels)."""
-    pred, ref = np.asarray(pred, float), np.asarray(ref, float)
-    return float(np.sqrt(np.sum((pred - ref) ** 2) / np.sum(ref**2)))
