@@ -117,6 +117,10 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     # the table's numbers are the JSON's
     auto = next(c for c in data["cases"] if c["material"] == "nielsen/cardboard" and c["model"] == "auto")
     assert re.search(rf"^nielsen/cardboard\*\s+{100 * auto['errors']['ennis']:.2f}\s", text, re.M)
+    # the JSON read back prints the same table
+    from brdfrig.evaluate.measured_report import format_table, result_from_json
+
+    assert format_table(result_from_json(data)) in text
     # a second run reads every ground truth from the cache
     assert main(argv) == 0
     assert "0 rendered, 4 from the cache" in capsys.readouterr().out

@@ -16,7 +16,7 @@ import numpy as np
 
 from brdfrig.evaluate.measured_run import MeasuredResult
 
-__all__ = ["summarize", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial",
+__all__ = ["summarize", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial", "result_from_json",
            "plot_errors", "plot_worst"]
 
 AUTO = "auto"
@@ -167,6 +167,24 @@ def result_to_json(result: MeasuredResult) -> dict:
                           for m in result.materials],
             "summary": summarize(result), "cases": cases, "phases_seconds": result.phases,
             "cache": {"hits": result.cache_hits, "misses": result.cache_misses}}
+
+
+def result_from_json(data: dict) -> MeasuredResult:
+    """The :class:`MeasuredResult` of a :func:`result_to_json` dict (``measured.json`` or the partial file read
+    back), without ground truths or relit images: enough for :func:`format_table` and :func:`format_summary`."""
+    from brdfrig.evaluate.measured import CaseResult, CaseSetup, Material
+
+    s = data["setup"]
+    setup = CaseSetup(int(s["size"]), s["fit_probe"], tuple(s["relight_probes"]), int(s["env_rows"]))
+    cases = [CaseResult(c["material"], c["model"], c["chosen_model"], c["scenes"], c["noise"],
+                        {k: (math.nan if v is None else v) for k, v in c["errors"].items()},
+                        math.nan if c["fit_seconds"] is None else c["fit_seconds"], c["estimate"], c["held_out"],
+                        estimate_method=c.get("estimate_method", ""), cpu_seconds=c.get("cpu_seconds"),
+                        failure=c.get("failure")) for c in data["cases"]]
+    done = {c.material for c in cases}
+    materials = [Material(m["name"], None, None, m["held_out"]) for m in data["materials"] if m["name"] in done]
+    return MeasuredResult(cases, setup, tuple(s["scene_counts"]), tuple(s["noises"]), tuple(s["models"]), materials,
+                          phases=dict(data.get("phases_seconds", {})))
 
 
 def plot_errors(result: MeasuredResult, path: Path) -> Path:
