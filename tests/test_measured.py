@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from brdfrig.fit.analytic import BlinnPhong, Lambertian
 from brdfrig.fit.brdf import brdf_from_dict
 from brdfrig.fit.measured import (
+    CUBIC_NODES,
     MERL_SCALES,
     NeuralBRDF,
     TabulatedBRDF,
@@ -171,14 +172,14 @@ def test_table_values_are_validated():
 
 def test_interpolation_matches_scipy_in_index_space():
     # Peer: scipy, on log1p of the table: linear in (theta_d index, periodic phi_d index) at every theta_h node
-    # (RegularGridInterpolator), then Catmull-Rom along the sqrt-spaced theta_h index (CubicHermiteSpline with
-    # central-difference slopes, end nodes repeated).
+    # (RegularGridInterpolator), then along the sqrt-spaced theta_h index Catmull-Rom below node CUBIC_NODES
+    # (CubicHermiteSpline with central-difference slopes, node 0 repeated), linear above.
     from scipy.interpolate import CubicHermiteSpline
 
     rng = np.random.default_rng(5)
     table = rng.uniform(0.1, 2.0, size=(90, 90, 180, 2))
     brdf = TabulatedBRDF(table)
-    th = (rng.uniform(0, 89, 500) / 90) ** 2 * np.pi / 2
+    th = (np.concatenate([rng.uniform(0, 15, 250), rng.uniform(0, 89, 250)]) / 90) ** 2 * np.pi / 2
     td = rng.uniform(0, 89, 500) / 90 * np.pi / 2
     pd = rng.uniform(0, 2 * np.pi, 500)
     wi, wo = rusinkiewicz_directions(th, td, pd)
@@ -195,7 +196,11 @@ def test_interpolation_matches_scipy_in_index_space():
         g = peer(np.stack([nodes, np.full(90, ud[k]), np.full(90, up[k])], 1))  # (90, C) along theta_h
         padded = np.concatenate([g[:1], g, g[-1:]])
         slope = (padded[2:] - padded[:-2]) / 2
-        expected.append(np.expm1(CubicHermiteSpline(nodes, g, slope)(uh[k])))
+        if uh[k] < CUBIC_NODES:
+            value = CubicHermiteSpline(nodes, g, slope)(uh[k])
+        else:
+            value = np.array([np.interp(min(uh[k], 89.0), nodes, g[:, c]) for c in range(g.shape[1])])
+        expected.append(np.expm1(value))
     np.testing.assert_allclose(got, np.maximum(expected, 0), rtol=1e-9)  # angles recomputed from directions
 
 
