@@ -4,8 +4,10 @@ Frames are camera raw files (DNG, CR2, NEF, ... decoded linearly by LibRaw)
 or TIFF/JPEG.  Exposure times come from the files' metadata (EXIF) unless
 ``--times`` gives them; when ISO or aperture also vary, the effective exposure
 ``t * ISO / N^2`` (relative to the first frame) is used.  Integer TIFF/JPEG
-frames are taken as non-linear and linearised by a response curve recovered
-from the bracket itself (Debevec & Malik), unless ``--response linear``.
+frames may be non-linear: with ``--response auto`` a response curve is recovered
+from the bracket itself (Debevec & Malik) and tested: a curve that is a
+straight line within its uncertainty means linear frames, merged as they are.
+The response and the clip radius chosen, and why, are printed and stored.
 
 The output EXR holds the radiance as R,G,B (frame units per second), its
 variance as ``variance.R/G/B``, the per-pixel merge flags as ``flags``
@@ -29,7 +31,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.cli._output import add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.hdr.colour import COLOUR_SPACES
 from brdfrig.ranges import EXPOSURE_S as EXPOSURE_TIME
 from brdfrig.ranges import FULL_WELL_E as FULL_WELL
@@ -53,17 +55,19 @@ def register(subparsers) -> None:
     p.add_argument("--weighting", choices=("optimal", "debevec"), default="optimal",
                    help="noise-optimal t^2/variance weights or Debevec's hat (default: %(default)s)")
     p.add_argument("--response", choices=("auto", "linear", "recover"), default="auto",
-                   help="linearisation of integer TIFF/JPEG frames: recover the response from the bracket "
-                        "(auto for integer TIFF/JPEG), or take them as linear (default: %(default)s)")
+                   help="linearisation of integer TIFF/JPEG frames: auto = recover a response curve from the "
+                        "bracket and use it only if it is not a straight line within its uncertainty; linear = "
+                        "take the frames as linear; recover = always use the recovered curve. Raw and float "
+                        "frames are always linear (default: %(default)s)")
     p.add_argument("--colour-space", choices=COLOUR_SPACES, default="camera",
                    help="colour space of the output: camera RGB as recorded, or linear Rec.709 / ACEScg from the "
                         "raw files' colour matrix and white balance (default: %(default)s)")
     p.add_argument("--align", action="store_true", help="align frames by translation (median threshold bitmaps)")
     p.add_argument("--clip-radius", type=CLIP_RADIUS.arg(), default=None, metavar="PX",
                    help="weight out every pixel within PX pixels of a pixel clipped in any channel: demosaicing "
-                        "spreads clipped values into neighbours that then read low (1 = bilinear demosaicing, as "
-                        "for raw files; 0 = frames not demosaiced; in-camera TIFF/JPEG may need 2) "
-                        "(default: %(default)s)")
+                        "spreads clipped values into neighbours that then read low (default: 1 for raw files, "
+                        "which brdfrig demosaics bilinearly; for TIFF/JPEG the demosaicing support measured "
+                        "from how the noise of neighbouring pixels correlates, 0 for frames never demosaiced)")
     p.add_argument("--no-reestimate", action="store_true",
                    help="trust the nominal exposure times (no re-estimation from well-exposed overlap)")
     p.add_argument("--full-well", type=FULL_WELL.arg(), default=None, metavar="E",
@@ -71,6 +75,7 @@ def register(subparsers) -> None:
                         "(default: 20000)")
     p.add_argument("--read-noise", type=READ_NOISE.arg(), default=None, metavar="E",
                    help=f"read noise in electrons for the noise model, {READ_NOISE.text()[1:]} (default: 5)")
+    add_json_argument(p)
     p.set_defaults(func=run)
 
 
@@ -121,6 +126,23 @@ def _standard_attributes(merged) -> dict:
     return standard
 
 
+def _numbers(merged, output) -> dict:
+    """Every number the summary prints (for ``--json``): size, dynamic range, saturation, times, choices."""
+    import numpy as np
+
+    res = merged.merge
+    ok = res.radiance[res.flags == 0]
+    pos = ok[ok > 0]
+    h, w = res.radiance.shape[:2]
+    return {"output": str(Path(output).resolve()), "frames": len(merged.files), "width": w, "height": h,
+            "dynamic_range": float(pos.max() / pos.min()) if pos.size else None,
+            "saturated_fraction": float(res.saturated_fraction), "nominal_times_s": res.nominal_times.tolist(),
+            "times_s": res.times.tolist(), "times_reestimated": not np.array_equal(res.times, res.nominal_times),
+            "response": merged.response, "response_reason": merged.response_reason,
+            "clip_radius_px": merged.clip_radius, "clip_radius_reason": merged.clip_reason,
+            "colour_space": merged.colour_space, "no_data": merged.no_data}
+
+
 def _summary(merged, output) -> str:
     import numpy as np
 
@@ -164,5 +186,8 @@ def run(args) -> int:
     res = merged.merge
     write_exr(args.output, res.radiance, {"variance": res.variance, "flags": res.flags.max(axis=2)},
               _attributes(merged), standard=_standard_attributes(merged), overwrite=not args.no_clobber)
-    print(_summary(merged, args.output))
+    if args.json:
+        print_json(_numbers(merged, args.output))
+    else:
+        print(_summary(merged, args.output))
     return 0

@@ -7,6 +7,19 @@ and the clip radius, and merges with :func:`brdfrig.hdr.merge.merge_bracket`.
 Every choice it makes from the data is returned with a sentence saying why
 (:class:`BracketMerge`), for the command to print and store.
 
+Response (``policy.response="auto"``): raw and floating-point frames are
+linear; for integer TIFF/JPEG/PNG frames a response is recovered from the
+bracket and tested against a straight line relative to its own uncertainty
+(:func:`brdfrig.hdr.response.linearity`): linear within it, the frames are
+merged as they are (a recovered curve would only add its noise), else they
+are linearised by the curve.
+
+Clip radius (``policy.clip_radius=None``): 1 for raw files (brdfrig decodes
+them with bilinear demosaicing, a 3x3 support); for TIFF/JPEG/PNG the
+demosaicing support measured from the correlation of the bracket's noise
+between neighbouring pixels (:func:`brdfrig.hdr.demosaic.demosaic_radius`: 0
+for pixels measured independently), or 1 when it cannot be measured.
+
 Effective exposure: ``t * (ISO / ISO_0) * (N_0 / N)^2`` relative to the
 first frame, when ISO or f-number vary within the bracket (NaN when a file
 does not record them: then that factor is 1).
@@ -40,6 +53,9 @@ __all__ = ["MergePolicy", "BracketMerge", "merge_files", "effective_times", "che
 #: Clip radius of frames decoded by brdfrig from raw files: the 3x3 support of the bilinear demosaicing of
 #: :func:`brdfrig.hdr.raw.decode_raw`.
 RAW_CLIP_RADIUS = 1
+#: Smoothness of the response curve used to linearise 16-bit frames (1024 bins), around the power law of a first
+#: recovery: on 7-frame 16-bit brackets the merge's median error is then within a few % of the noise-optimal one.
+_SMOOTHNESS_16BIT = 160.0
 
 
 @dataclass(frozen=True)
@@ -169,24 +185,42 @@ def _times(files: Sequence[Path], times: Sequence[float] | None) -> tuple[list[f
 
 
 def _response(frames, times, linear, files, policy: MergePolicy) -> tuple[list[np.ndarray], str, str]:
-    """Linearised frames, the response applied and why."""
-    from brdfrig.hdr.response import linearize, recover_response
+    """Linearised frames, the response applied (``"linear"`` or ``"recover"``) and why."""
+    from brdfrig.hdr.response import linearity, linearize, power_slope, recover_response
 
     if all(linear):
         return frames, "linear", "raw or floating-point frames are linear"
     if policy.response == "linear":
         return frames, "linear", "linear response requested"
     if len(frames) < 2:
-        raise InputError("response recovery needs at least 2 frames; use --response linear for one frame")
-    jpeg = all(f.suffix.lower() in (".jpg", ".jpeg") for f in files)
-    curve = recover_response(frames, times, levels=256 if jpeg else 1024)
-    return [linearize(f, curve) for f in frames], "recover", "response recovered from the bracket"
+        raise InputError("response recovery needs at least 2 frames; give --response linear for one frame")
+    levels = 256 if all(f.suffix.lower() in (".jpg", ".jpeg") for f in files) else 1024
+    curve = recover_response(frames, times, levels=levels)
+    if policy.response == "auto":
+        test = linearity(curve)
+        if test.linear:
+            return frames, "linear", test.describe()
+        reason = test.describe() + ": linearised by it"
+    else:
+        reason = "response recovery requested"
+    if levels > 256:  # 4x fewer samples per bin than 8-bit data: smooth harder, around the curve's power law
+        curve = recover_response(frames, times, levels=levels, smoothness=_SMOOTHNESS_16BIT, slope=power_slope(curve))
+    return [linearize(f, curve) for f in frames], "recover", reason
 
 
-def _clip_radius(files, policy: MergePolicy) -> tuple[int, str]:
+def _clip_radius(files, frames, times, policy: MergePolicy) -> tuple[int, str]:
+    """Clip radius (pixels) by what the frames are, and why."""
+    from brdfrig.hdr.demosaic import demosaic_radius
+
     if policy.clip_radius is not None:
-        return int(policy.clip_radius), "clip radius given"
-    return RAW_CLIP_RADIUS, "bilinear demosaicing support"
+        return int(policy.clip_radius), "given"
+    if all(is_raw(f) for f in files):
+        return RAW_CLIP_RADIUS, "raw files, decoded with bilinear demosaicing (3x3 support)"
+    support = demosaic_radius(frames, times) if len(frames) > 1 else None
+    if support is None:
+        return RAW_CLIP_RADIUS, ("too few well-exposed neighbours to measure the noise correlation: "
+                                 f"{RAW_CLIP_RADIUS}, as for demosaiced frames")
+    return support.radius, support.describe()
 
 
 def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergePolicy(), *,
@@ -213,7 +247,7 @@ def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergeP
     matrix = raw_file_matrix(files[0], policy.colour_space)
     frames, linear = _read_frames(files)
     frames, response, response_reason = _response(frames, used_times, linear, files, policy)
-    radius, clip_reason = _clip_radius(files, policy)
+    radius, clip_reason = _clip_radius(files, frames, used_times, policy)
     res = merge_bracket(frames, used_times, weighting=policy.weighting, saturation=1.0,
                         clip_threshold=policy.clip_threshold, clip_radius=radius, align=policy.align,
                         reestimate_times=policy.reestimate_times, full_well=policy.full_well,
