@@ -1,6 +1,6 @@
 """Benchmark: the peer a user would pick instead of brdfrig, on measured materials.
 
-Run as ``python -m benchmarks.bench_mitsuba_peer [--materials A B ...] [--size N] [--iterations K] [--spp S] [--loss l2|log]``.
+Run as ``python -m benchmarks.bench_mitsuba_peer [--materials A B ...] [--size N] [--iterations K] [--spp S] [--loss log|l2]``.
 
 For each measured material (``../shared/data/measured``, loaded with
 :func:`brdfrig.fit.measured.load_measured`, tabulated to MERL's grid and rendered by
@@ -37,7 +37,7 @@ def _image(values: np.ndarray, px, size: int) -> np.ndarray:
     return out
 
 
-def run(material: str, size: int, iterations: int, spp: int, loss: str = "l2") -> dict:
+def run(material: str, size: int, iterations: int, spp: int, loss: str = "log") -> dict:
     """Fit and relight one material; returns its row of the table."""
     path = MEASURED_DIR / (material + ("" if material.startswith("nielsen/") else "_rgb") + ".h5")
     table = tabulate(load_measured(path))
@@ -58,7 +58,7 @@ def main(argv=None) -> None:
     parser.add_argument("--size", type=int, default=96)
     parser.add_argument("--iterations", type=int, default=120)
     parser.add_argument("--spp", type=int, default=16)
-    parser.add_argument("--loss", choices=("l2", "log"), default="l2")
+    parser.add_argument("--loss", choices=("log", "l2"), default="log")
     args = parser.parse_args(argv)
     rows = []
     for material in args.materials:

@@ -50,15 +50,16 @@ def test_fit_principled_rejects_bad_images():
 def test_peer_recovers_a_principled_sphere():
     """Fit under grace, relight under ennis (64x32, 32 px): within 3% of the truth's render.
 
-    Measured (64 px, 60 iterations x 16 spp): base colour within 0.015, roughness 0.348 for 0.35,
-    relighting 1.7% (Mitsuba noise of both renders included).
+    Measured (64 px, 60 iterations x 16 spp, ``l2`` loss): base colour within 0.015, roughness 0.348
+    for 0.35, relighting 1.7-1.9% (Mitsuba noise of both renders included).  The default ``log`` loss
+    relights this sphere at 3.6% (32 px, 120 iterations): the log of a noisy render is biased.
     """
     ms.require_ad_variant()
     from brdfrig.evaluate.mitsuba_peer import fit_principled, render_principled
 
     grace, ennis = ms.probe_latlong("grace"), ms.probe_latlong("ennis")
     image = render_principled(TRUTH, grace, SIZE, spp=512)
-    params, seconds = fit_principled(image, grace, spp=16, iterations=60, seed=1)
+    params, seconds = fit_principled(image, grace, spp=16, iterations=60, seed=1, loss="l2")
     assert seconds > 0
     assert np.allclose(params["base_color"], TRUTH["base_color"], atol=0.05), params
     assert abs(params["roughness"] - TRUTH["roughness"]) < 0.06, params
