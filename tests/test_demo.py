@@ -65,3 +65,13 @@ def test_quick_demo_runs_end_to_end(installed, tmp_path):
         assert brdf.model == "lobe"
         assert (results / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
         assert str(results / f"{name}.png") in r.stdout
+    # stats.json holds the numbers printed: the relighting table (to its printed 0.01%) and the merge counts
+    import json
+
+    stats = json.loads((results / "stats.json").read_text())
+    table = {row["name"]: row for row in stats["demo"]["relighting_heldout"]}
+    for name, printed in rows.items():
+        assert abs(100 * table[name]["error"] - float(printed)) <= 0.005 + 1e-9 and table[name]["model"] == "lobe"
+    merged, cached = map(int, re.search(r"merged (\d+) brackets \((\d+) reused", r.stdout).groups())
+    assert (stats["merged"], stats["merged_from_cache"]) == (merged, cached) and merged > 0
+    assert stats["demo"]["captured_files"] == int(re.search(r"captured (\d+) files", r.stdout).group(1))

@@ -5,6 +5,10 @@ named: hard links, symlinks, ``./a`` vs ``a``), must have a suffix the command
 really writes, must live in an existing directory and, with ``--no-clobber``,
 must not exist yet (the atomic writer then also refuses to replace a file that
 appears meanwhile).
+
+``--json`` (:func:`add_json_argument`, :func:`print_json`): a command prints one
+JSON document holding every number of its text output, and nothing else on
+stdout (warnings and progress stay on stderr).
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from pathlib import Path
 
 from brdfrig.errors import InputError
 
-__all__ = ["add_output_arguments", "check_output"]
+__all__ = ["add_output_arguments", "check_output", "add_json_argument", "print_json", "Printer"]
 
 
 def add_output_arguments(parser, metavar: str, help: str) -> None:
@@ -22,6 +26,32 @@ def add_output_arguments(parser, metavar: str, help: str) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, metavar=metavar, help=help)
     parser.add_argument("--no-clobber", action="store_true",
                         help="refuse to replace an existing output file (default: replace it atomically)")
+
+
+def add_json_argument(parser) -> None:
+    """Add ``--json`` to a command's parser."""
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document of every number the command prints, nothing else on stdout")
+
+
+def print_json(doc) -> None:
+    """Print ``doc`` as one JSON document (numpy values, paths and fit reports converted; non-finite as text)."""
+    import json
+
+    from brdfrig.fit.brdffile import jsonable
+
+    print(json.dumps(jsonable(doc), indent=1, allow_nan=False))
+
+
+class Printer:
+    """``print`` for a command's text output, silent under ``--json`` (the JSON document replaces it)."""
+
+    def __init__(self, json_mode: bool):
+        self.json_mode = bool(json_mode)
+
+    def __call__(self, *text) -> None:
+        if not self.json_mode:
+            print(*text)
 
 
 def _same_file(a: Path, b: Path) -> bool:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.cli._output import Printer, add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.fit.registry import MODELS, SOLVERS
 from brdfrig.ranges import BANDS
 
@@ -46,6 +46,7 @@ def register(subparsers) -> None:
     p.add_argument("--report", default=None, metavar="REPORT.html",
                    help="also write a self-contained HTML report: spheres, relighting, BRDF plots, statistics")
     add_output_arguments(p, "BRDF.json", "output BRDF file (JSON)")
+    add_json_argument(p)
     p.set_defaults(func=run)
 
 
@@ -143,20 +144,25 @@ def run(args) -> int:
     result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress,
                       estimate=True)
     rep = result.report
-    print(rep.identifiability_summary)
-    print("\n".join(format_report(rep)))
+    say = Printer(args.json)
+    say(rep.identifiability_summary)
+    say("\n".join(format_report(rep)))
     for w in rep.warnings:
         print(f"warning: {w}", file=sys.stderr)
     save_brdf(out, result.brdf, rep, provenance={"command": "brdfrig fit", "inputs": inputs, "argv": sys.argv[1:]},
               colour_space=colour_space, overwrite=not args.no_clobber)
-    print(f"wrote {out}")
+    say(f"wrote {out}")
     title = f"{Path(inputs[0]['image']).stem}: {result.brdf.model} fit, lmax {args.lmax}, {len(scenes)} scene(s)"
     if args.figure:
         fit_figure(args.figure, scenes, pixels, result.brdf, title=title)
-        print(f"wrote {args.figure}")
+        say(f"wrote {args.figure}")
     if args.report:
         fig = png_bytes(fit_figure_of(scenes, pixels, result.brdf, title=title), dpi=90)
         sample = SampleReport(Path(inputs[0]["image"]).stem, result.brdf, jsonable(rep.to_dict()), fit_png=fig)
         write_report(report_path, f"brdfrig fit: {out.name}", [sample], notes=" ".join(sys.argv[1:]))
-        print(f"wrote {report_path}")
+        say(f"wrote {report_path}")
+    if args.json:
+        print_json({"brdf": str(out.resolve()), "model": result.brdf.model, "colour_space": colour_space,
+                    "inputs": inputs, "report": rep.to_dict(), "figure": args.figure and str(Path(args.figure).resolve()),
+                    "html_report": str(report_path.resolve()) if args.report else None})
     return 0

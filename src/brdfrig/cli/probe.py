@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.cli._output import add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.ranges import ALBEDO, PIXELS, Range
 
 RIM = Range(0, 1, open_lo=True)
@@ -64,6 +64,7 @@ def register(subparsers) -> None:
                    help=f"lat-long width, even, W{WIDTH.text()} (height W/2; default 512)")
     p.add_argument("--statistic", choices=("median", "trimmed"), default="median",
                    help="per-pixel statistic over rotations (default: %(default)s)")
+    add_json_argument(p)
     p.set_defaults(func=run)
 
 
@@ -107,6 +108,12 @@ def run(args) -> int:
     unseen = 1 - float(np.mean(seen))
     albedo_text = "1 (uncalibrated)" if probe.albedo is None else ", ".join(f"{a:.4g}" for a in probe.albedo)
     c = probe.circle
+    if args.json:
+        print_json({"output": str(Path(args.output).resolve()), "circle_px": list(c), "rotations": len(args.images),
+                    "rotation_statistic": attributes["rotation_statistic"], "albedo": attributes["albedo"],
+                    "width": args.width, "height": args.width // 2, "unseen_cone_deg": cone,
+                    "camera_mask_deg": args.camera_mask, "unseen_fraction": unseen})
+        return 0
     print(f"probe: circle ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) px"
           + (f", {len(args.images)} rotations combined ({args.statistic})" if several else "") + f", albedo {albedo_text}")
     print(f"wrote {args.output} ({args.width}x{args.width // 2} lat-long); unseen: cone of {cone:.1f} deg around "

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from brdfrig.cli._output import add_output_arguments, check_output
+from brdfrig.cli._output import add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.ranges import Range
 
 SIZE = Range(1, 4096, integer=True)  # image side, pixels
@@ -31,6 +31,7 @@ def register(subparsers) -> None:
     p.add_argument("--size", type=SIZE.arg(), required=True,
                    help=f"image size N in pixels, N{SIZE.text()} (sphere radius N/2)")
     add_output_arguments(p, "OUT.exr", "output EXR (linear float32)")
+    add_json_argument(p)
     p.set_defaults(func=run)
 
 
@@ -82,5 +83,8 @@ def run(args) -> int:
     image[px.rows, px.cols] = _radiance(brdf.predict(env, px.normals), args.brdf)
     provenance = {"brdf": str(Path(args.brdf).resolve()), "lighting": str(Path(args.lighting).resolve())}
     write_exr(out, image, attributes=provenance, overwrite=not args.no_clobber)
-    print(f"wrote {out}")
+    if args.json:
+        print_json({"output": str(Path(out).resolve()), **provenance, "size": n, "channels": env.channels})
+    else:
+        print(f"wrote {out}")
     return 0

@@ -256,7 +256,8 @@ def run_pipeline(session_dir: str | Path, fit: FitPreset | None = None, *, progr
     results_dir = store.staging_results_dir()  # renamed to results/fit-NNN only once complete
     result = PipelineResult(results_dir, merged=len(merged), merged_from_cache=n_cached, scenes=envs)
     stats_all = {"session": str(store.root), "fit": asdict(fit), "batch": batch_id,
-                 "colour_space": config.rig.camera.colour_space, "samples": {}}
+                 "colour_space": config.rig.camera.colour_space, "merged": len(merged), "merged_from_cache": n_cached,
+                 "samples": {}}
     for name, (scenes, pixels) in per_sample.items():
         echo(f"fitting {name}: {len(scenes)} scene(s), model {fit.model}, lmax {fit.lmax}, pmax {fit.pmax}, "
              f"solver {fit.solver}")
