@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -95,3 +96,29 @@ def test_rig_check_refuses_a_missing_out_folder_before_moving_anything(capsys, t
     assert err.strip() == (f"brdfrig rig: error: --out {str(missing)!r} is not a writable folder: create it or "
                            "choose another (nothing was moved)")
     assert not missing.exists()
+
+
+def test_simulated_rig_check_prints_what_it_detected(capsys):
+    """Firmware and $$ settings of the (simulated) GRBL board, the camera model, the spheres of a test frame."""
+    import numpy as np
+
+    from brdfrig.devices import make_sim_bench
+
+    assert main(["rig", "check", "--simulate", "--exposure", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "Grbl 1.1h" in out and re.search(r"settings\s+ok\s+.*\$100=80 \$110=21600", out)
+    assert "metadata             ok       brdfrig SimulatedCamera; file says 0.5 s" in out
+    line = next(ln for ln in out.splitlines() if ln.lstrip().startswith("spheres"))
+    circles = [tuple(map(float, c.split(","))) for c in re.findall(r"\(([-\d., ]+)\)", line)]
+    bench = make_sim_bench({"scale": 0.25, "env_height": 16}, "rig", "the rig check's simulated bench")  # --simulate's
+    assert "3 found" in line and len(circles) == 3
+    # Detected on the demosaiced DNG: centres within 0.3 px, radii within 0.75 px (3%) of the bench's true circles.
+    truth = [bench.probe_circle, *sorted(bench.sample_circles.values())]
+    err = np.abs(np.array(circles) - np.array(truth))
+    assert err[:, :2].max() < 0.3 and err[:, 2].max() < 0.75, (circles, truth)
+
+
+def test_rig_check_says_when_the_test_frame_shows_no_sphere(capsys):
+    assert main(["rig", "check", "--simulate"]) == 0  # 0.01 s: too dark a frame to see the spheres; not a failure
+    out = capsys.readouterr().out
+    assert re.search(r"spheres\s+none\s+.*no sphere found", out) and "all devices work" in out

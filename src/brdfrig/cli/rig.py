@@ -1,9 +1,13 @@
 """``brdfrig rig check``: find and exercise the configured devices and report what works.
 
 The turntable check connects (GRBL 1.1 greeting, ``$$`` settings), homes,
-rotates to +10 degrees and back with read-back verification, and stops.  The
+rotates to +10 degrees and back with read-back verification, and stops; it
+prints the firmware version and every ``$$`` setting the board reports.  The
 camera check sets an exposure, takes one picture into ``--out`` (default: a
-temporary folder) and reads the exposure back from the file's metadata.
+temporary folder), reads the exposure and the camera model back from the
+file's metadata and prints the spheres it finds in the picture
+(``brdfrig.hdr.detect.detect_spheres``; the most mirror-like one is the probe,
+as ``brdfrig locate`` decides), with their circles in pixels.
 Devices come from the ``[rig]`` table of a rig file or a session file
 (``--config``), or from flags; ``--simulate`` runs the GRBL simulator on a
 pseudo-terminal and the simulated camera, through the same drivers.  With no
@@ -111,6 +115,7 @@ def _check_turntable(s: _TableSettings, stack: contextlib.ExitStack, report) -> 
         with table:
             report("turntable", "ok", f"{table.firmware} on {s.port or 'simulator'} at {s.baud} baud, "
                                       f"$100={s.steps_per_degree:g} steps/deg, max rate {table.rate_deg_s:g} deg/s")
+            report("  settings", "ok", " ".join(f"${k}={v:g}" for k, v in sorted(table.settings.items())))
             t0 = time.monotonic()
             table.home()
             report("  home", "ok", f"homed in {time.monotonic() - t0:.1f} s, position 0 confirmed")
@@ -156,12 +161,37 @@ def _check_camera(s: _CameraSettings, sim, sim_opts: dict, carries: str, out: Pa
         report("camera", "FAILED", f"{type(exc).__name__}: {exc}")
         return
     try:
-        from brdfrig.hdr.raw import read_exposure
+        from brdfrig.hdr.raw import read_camera_model, read_exposure
 
         exp = read_exposure(path)
-        report("  metadata", "ok", f"file says {exp.time_s:g} s, ISO {exp.iso:g}, f/{exp.f_number:g}")
+        model = read_camera_model(path) or "camera model not recorded"
+        report("  metadata", "ok", f"{model}; file says {exp.time_s:g} s, ISO {exp.iso:g}, f/{exp.f_number:g}")
     except (ValueError, OSError) as exc:
         report("  metadata", "FAILED", str(exc))
+        return
+    _report_spheres(path, report)
+
+
+def _report_spheres(path: Path, report) -> None:
+    """The spheres found in the test picture (probe first), or a note that none was found (not a failure)."""
+    from brdfrig.cli.locate import locate
+    from brdfrig.hdr.detect import SphereNotFoundError
+
+    try:
+        found = locate(path, 8)
+    except SphereNotFoundError as exc:
+        report("  spheres", "none", f"{exc} (aim the camera at the bench and light it to see them here)")
+        return
+    except (ValueError, OSError) as exc:
+        report("  spheres", "FAILED", f"cannot read the picture: {exc}")
+        return
+
+    def circle(c) -> str:
+        return "(" + ", ".join(f"{v:.1f}" for v in c) + ")"
+
+    samples = ", ".join(circle(c) for c in found["samples"]) or "none"
+    report("  spheres", "ok", f"{1 + len(found['samples'])} found: probe {circle(found['probe'])} px, "
+                              f"samples {samples} px (circles cx, cy, r; plan lines: brdfrig locate)")
 
 
 def run(args) -> int:

@@ -32,7 +32,7 @@ import numpy as np
 from brdfrig.errors import InputError
 from brdfrig.hdr.exr import read_oiio
 
-__all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw"]
+__all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw", "read_camera_model"]
 
 #: File suffixes decoded by LibRaw (others go through OpenImageIO).
 RAW_SUFFIXES = frozenset({".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf",
@@ -175,3 +175,19 @@ def read_exposure(path: str | os.PathLike) -> Exposure:
         return float(value) if value is not None and float(value) > 0 else float("nan")
 
     return Exposure(time_s=float(time_s), f_number=_opt(f_number), iso=_opt(iso))
+
+
+def read_camera_model(path: str | os.PathLike) -> str:
+    """The camera's make and model from a file's metadata (EXIF / DNG ``Make``, ``Model``); "" when absent."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"{path}: cannot read metadata: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        parts = [str(spec.getattribute(k) or "").strip() for k in ("Make", "Model")]
+    finally:
+        inp.close()
+    make, model = parts
+    return model if make and model.lower().startswith(make.lower()) else " ".join(p for p in parts if p)

@@ -173,7 +173,8 @@ class GrblTurntable:
         self.reconnect_attempts = reconnect_attempts
         self.link = SerialLink(port, baud)
         self.journal = journal
-        self.firmware = ""
+        self.firmware = ""  # the controller's greeting, e.g. "Grbl 1.1h ['$' for help]"
+        self.settings: dict[int, float] = {}  # the controller's $$ settings as last read (number -> value)
         self.rate_deg_s = 1.0
         self._lock = threading.RLock()
         self._homed = False
@@ -397,6 +398,7 @@ class GrblTurntable:
         if rate_deg_min <= 0:
             raise DeviceRefused(f"controller reports max rate $110={rate_deg_min}: set a positive rate")
         self.rate_deg_s = rate_deg_min / 60.0
+        self.settings = dict(settings)
         self._homed = False
 
     def _homing_cycle(self) -> str | None:
