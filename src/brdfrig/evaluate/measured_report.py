@@ -90,7 +90,10 @@ def _auto_quality(mats: dict) -> dict:
 
 
 def _pct(x) -> str:
-    return "     -" if x is None else f"{100 * x:6.2f}"
+    """A fraction as a percentage in 6 characters (``>9999`` beyond; ``-`` for None)."""
+    if x is None:
+        return "     -"
+    return f"{100 * x:6.2f}" if 100 * x < 1000 else (f"{100 * x:6.0f}" if 100 * x < 1e5 else " >1e5")
 
 
 def _cell(case) -> str:
