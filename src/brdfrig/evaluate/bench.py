@@ -61,7 +61,7 @@ import numpy as np
 
 from brdfrig._atomic import temp_path
 from brdfrig.fit.analytic import GGX
-from brdfrig.fit.registry import LINEAR_SH, SOLVERS
+from brdfrig.fit.registry import LINEAR_SH, PRIOR_OF, SOLVERS
 from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.scene import Environment, Scene
@@ -261,14 +261,16 @@ def plan_cases(config: BenchConfig) -> list[tuple[str, str, int, int]]:
 
 
 def _warm_up(sphere: SphereGeometry, env: Environment, groundtruth: GroundTruth) -> None:
-    """Untimed ``auto`` (diffuse, lobe, microfacet) and ``full`` fits of a tiny sphere: numba kernels load, tables get built."""
+    """Untimed fits of a tiny sphere by every model of the table but ``full+prior`` (whose parts they are): numba
+    kernels load, tables get built."""
     from brdfrig.fit.fitter import fit_brdf
 
     normals, weights = sphere(12)
     seen = weights > 0
     scenes = [Scene(env, normals[seen], groundtruth(TRUTH, normals[seen], env), weights[seen])]
-    for model in ("auto", "full"):
-        fit_brdf(scenes, model=model, lmax=2, pmax=2, progress=False)
+    for model in MODELS:
+        if model not in PRIOR_OF:
+            fit_brdf(scenes, model=model, lmax=2, pmax=2, progress=False, estimate=False)
 
 
 def _add_stages(total: dict[str, float], report) -> None:

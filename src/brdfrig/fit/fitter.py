@@ -60,6 +60,10 @@ along barely excited directions, relights at 2e5 relative error.  Measured (GGX 
 0.61% / 3.5% / 7.7% vs 0.42% / 3.6% / 8.5% for the prior's own projection onto ``full`` (0.01:
 1.2% / 3.4% / 7.7%); twelve scenes, floor 0.01: 0.97% / 0.93% / 1.35% vs 2.7% for plain ``full``
 (0.1: 0.55% / 2.3% / 6.2%: too strong once the data determine the model)."""
+LOSO_MAX_CANDIDATES = 4
+"""With several scenes, the leave-one-scene-out estimate refits (per fold) the requested model or, for
+``auto``, the admissible candidates with the smallest held-out errors, at most this many (the others get
+no estimate and are not chosen)."""
 REFERENCES = tuple(m for m in RICHNESS if REGISTRY[m].kind == "single" or m in ("diffuse", "lobe"))
 """Candidates a one-scene fit of a requested model is compared with for its relighting estimate
 (the models one image determines)."""
@@ -283,6 +287,7 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
                 preds[m] = pred
         if len(data.scenes) >= 2:
             names = [m for m in fitter.brdfs if model == m or (cands[m].determined and cands[m].radiance_check is None)]
+            names = sorted(names, key=lambda m: (m != model, cands[m].heldout_relative_rms or 0.0))[:LOSO_MAX_CANDIDATES]
             estimates = loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, model == "auto"))
         else:
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})

@@ -209,7 +209,8 @@ def _channels(values) -> str:
 def _parameters(fit_report: dict, limit: int = 6) -> str:
     """A single-model fit's per-channel parameters (lists of numbers), at most ``limit`` of them."""
     items = [(k, v) for k, v in fit_report.items() if isinstance(v, list) and 0 < len(v) <= 4
-             and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)]
+             and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+             and not any(w in k for w in ("samples", "pixels", "renders", "fraction", "lambda"))]
     return " ".join(f"{k} {_channels(v)}" for k, v in items[:limit])
 
 
