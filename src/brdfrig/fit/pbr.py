@@ -23,11 +23,13 @@ Three families, each energy-conserving (directional albedo <= 1 at every angle) 
   the reflectance at normal incidence, ``specular_color`` the tint at 82 degrees; no diffuse term.
 - ``sheen`` (:class:`SheenBRDF`, fabrics and felts): OpenPBR's ``fuzz`` as a Charlie sheen lobe
   (Estevez & Kulla 2017, with the glTF ``KHR_materials_sheen`` Lambda fit) of colour
-  ``fuzz_color`` and roughness ``fuzz_roughness`` over the dielectric model above (``coat=False``:
-  over the diffuse base alone).  The fuzz transmits ``1 - E_fuzz``: the base is attenuated by
-  ``t = (1 - E_fuzz)(1 - E_coat)`` on both sides (normalised as above) and the coating's lobe by
-  ``min(1 - E_fuzz(cos_i), 1 - E_fuzz(cos_o))``, which keeps the albedo
-  ``fuzz E_fuzz + (1 - E_fuzz)(w E_coat + base (1 - E_coat)) <= 1``.
+  ``fuzz_color`` and roughness ``fuzz_roughness``, weighted by ``fuzz_weight`` (OpenPBR's mix), over the
+  dielectric model above (``coat=False``: over the diffuse base alone).  The fuzz layer reflects
+  ``fuzz_weight fuzz_color`` times the lobe and transmits ``1 - fuzz_weight E_fuzz``: the base is
+  attenuated by ``t = (1 - fuzz_weight E_fuzz)(1 - E_coat)`` on both sides (normalised as above) and
+  the coating's lobe by ``min(1 - fuzz_weight E_fuzz(cos_i), 1 - fuzz_weight E_fuzz(cos_o))``, which keeps
+  the albedo ``fw fuzz E_fuzz + (1 - fw E_fuzz)(w E_coat + base (1 - E_coat)) <= 1``; ``fuzz_weight = 0``
+  is the model without fuzz.
 
 Roughness convention (OpenPBR, glTF): GGX ``alpha = specular_roughness^2``, Charlie
 ``alpha = fuzz_roughness^2``.  Oren-Nayar: the qualitative model of :mod:`brdfrig.fit.analytic`
@@ -251,16 +253,17 @@ def _base_norm(t: np.ndarray) -> float:
 
 
 def layered_rows(
-    amplitudes: np.ndarray, alpha: float, ior: float, fuzz_alpha: float, coat: bool, fuzz: bool
+    amplitudes: np.ndarray, alpha: float, ior: float, fuzz_alpha: float, coat: bool, fuzz_weight: float
 ) -> np.ndarray:
     """Kernel rows (K, LAYERED_PARAMS) of ``KIND_LAYERED`` for amplitude rows ``(dA, dB, w, fuzz)`` (K, 4).
 
-    The shape parameters (``alpha``, ``ior``, ``fuzz_alpha``) and which layers exist (``coat``, ``fuzz``)
-    fix the tables; the amplitudes enter the BRDF linearly (a fit renders unit rows as its columns).
+    The shape parameters (``alpha``, ``ior``, ``fuzz_alpha``), whether the coating exists and the fuzz
+    layer's ``fuzz_weight`` (0: none) fix the tables; the amplitudes enter the BRDF linearly (a fit
+    renders unit rows as its columns).  ``fuzz`` is the fuzz lobe's amplitude ``fuzz_weight * fuzz_color``.
     """
     amplitudes = np.atleast_2d(np.asarray(amplitudes, dtype=np.float64))
     t_coat = 1.0 - coat_albedo(alpha, ior) if coat else np.ones(TABLE_SIZE)
-    t_fuzz = 1.0 - sheen_albedo(fuzz_alpha) if fuzz else np.ones(TABLE_SIZE)
+    t_fuzz = 1.0 - fuzz_weight * sheen_albedo(fuzz_alpha) if fuzz_weight > 0 else np.ones(TABLE_SIZE)
     t = np.clip(t_coat * t_fuzz, 0.0, 1.0)
     rows = np.zeros((len(amplitudes), LAYERED_PARAMS))
     rows[:, 0:3] = amplitudes[:, 0:3]
@@ -270,7 +273,7 @@ def layered_rows(
     rows[:, LAYERED_HEAD + TABLE_SIZE :] = np.clip(t_fuzz, 0.0, 1.0)
     if not coat:
         rows[:, 2] = 0.0
-    if not fuzz:
+    if fuzz_weight <= 0:
         rows[:, 5] = 0.0
     return rows
 
@@ -362,6 +365,7 @@ class _Layered(AnalyticBRDF):
     fuzz_color: np.ndarray = 0.0
     fuzz_roughness: float = 0.5
     coat: bool = True
+    fuzz_weight: float = 1.0
     kind = KIND_LAYERED
 
     def __post_init__(self) -> None:
@@ -377,11 +381,12 @@ class _Layered(AnalyticBRDF):
         object.__setattr__(self, "specular_ior", _scalar("specular_ior", self.specular_ior, *IOR_RANGE))
         object.__setattr__(self, "fuzz_roughness", _scalar("fuzz_roughness", self.fuzz_roughness, math.sqrt(ALPHA_MIN), 1.0))
         object.__setattr__(self, "coat", bool(self.coat))
+        object.__setattr__(self, "fuzz_weight", _scalar("fuzz_weight", self.fuzz_weight, 0.0, 1.0) if self.model == "sheen" else 0.0)
         ab = np.array([oren_nayar_ab(float(s)) for s in self.base_diffuse_roughness]).reshape(-1, 2)
         amps = np.stack([self.base_color * ab[:, 0], self.base_color * ab[:, 1],
-                         np.full(self.base_color.size, self.specular_weight), self.fuzz_color], axis=1)
+                         np.full(self.base_color.size, self.specular_weight), self.fuzz_weight * self.fuzz_color], axis=1)
         rows = layered_rows(amps, self.specular_roughness**2, self.specular_ior, self.fuzz_roughness**2,
-                            self.coat, self.model == "sheen")
+                            self.coat, self.fuzz_weight)
         object.__setattr__(self, "_rows", rows)
 
     def kernel_params(self) -> np.ndarray:
@@ -401,7 +406,7 @@ class _Layered(AnalyticBRDF):
             "specular_roughness": self.specular_roughness,
             "specular_ior": self.specular_ior,
             "coat": self.coat,
-            "fuzz_weight": 1.0 if self.model == "sheen" else 0.0,
+            "fuzz_weight": self.fuzz_weight,
             "fuzz_color": self.fuzz_color.tolist(),
             "fuzz_roughness": self.fuzz_roughness,
             "conventions": {
@@ -415,7 +420,7 @@ class _Layered(AnalyticBRDF):
     @classmethod
     def from_dict(cls, d: dict):
         keys = ("base_color", "base_diffuse_roughness", "specular_weight", "specular_roughness", "specular_ior",
-                "fuzz_color", "fuzz_roughness", "coat")
+                "fuzz_color", "fuzz_roughness", "coat", "fuzz_weight")
         return cls(**{k: d[k] for k in keys if k in d})
 
 

@@ -13,8 +13,9 @@ family          linear amplitudes (bounds)                            shape para
 ``conductor``   per channel ``base_color`` in [0, 1] and the edge     ``alpha``
                 term ``(1 - specular_color) S(1/7)`` in
                 ``[0, S(1/7)]`` (exact 2-variable QP)
-``sheen``       per channel ``dA``, ``dB``, ``fuzz_color`` in [0, 1]  ``fuzz alpha``; with ``coat=True`` also
-                (+ shared ``specular_weight`` with ``coat``)          ``alpha`` (nested), ``ior`` fixed 1.5
+``sheen``       per channel ``dA``, ``dB``, ``fuzz_weight fuzz_color``  ``fuzz alpha``, ``fuzz_weight`` in [0, 1]
+                in [0, fuzz_weight] (+ shared ``specular_weight``     (inner, no renders); with ``coat=True``
+                with ``coat``)                                        ``fuzz_weight`` 1 and ``alpha``, ``ior`` 1.5
 ==============  ====================================================  ===========================================
 
 The Oren-Nayar slope deviation follows from ``dB / dA`` (:func:`brdfrig.fit.microfacet._oren_nayar`).
@@ -205,7 +206,7 @@ class _Data:
 
     def fuzz(self, fuzz_alpha: float) -> np.ndarray:
         """Weighted fuzz column (N, C) of unit colour."""
-        row = layered_rows(np.array([[0, 0, 0, 1.0]]), 0.1, 1.5, fuzz_alpha, False, True)
+        row = layered_rows(np.array([[0, 0, 0, 1.0]]), 0.1, 1.5, fuzz_alpha, False, 1.0)
         self.renders += 1
         return np.concatenate([render_basis(KIND_LAYERED, row, n, e)[:, :, 0] for n, e in zip(self.normals, self.envs)]) * self.sqrt_w[:, None]
 
@@ -260,12 +261,15 @@ class _Dielectric:
 
     def fuzz_row(self, fuzz_alpha: float) -> np.ndarray:
         """A layered row carrying only the fuzz transmission table (what the lobe moments read)."""
-        return layered_rows(np.zeros((1, 4)), 0.1, 1.5, fuzz_alpha, False, self.fuzz)[0]
+        return layered_rows(np.zeros((1, 4)), 0.1, 1.5, fuzz_alpha, False, float(self.fuzz))[0]
 
-    def solve(self, alpha: float, ior: float, fuzz_alpha: float, fuzz_col=None):
-        """(squared residual, per-channel amplitudes (C, 2 or 3), specular weight) at fixed shapes."""
+    def solve(self, alpha: float, ior: float, fuzz_alpha: float, fuzz_col=None, fuzz_weight: float = 1.0):
+        """(squared residual, per-channel amplitudes (C, 2 or 3), specular weight) at fixed shapes.
+
+        The fuzz amplitude (``fuzz_weight * fuzz_color``) is bounded by ``fuzz_weight``.
+        """
         d = self.data
-        t_fuzz = 1.0 - sheen_albedo(fuzz_alpha) if self.fuzz else np.ones(TABLE_SIZE)
+        t_fuzz = 1.0 - fuzz_weight * sheen_albedo(fuzz_alpha) if self.fuzz else np.ones(TABLE_SIZE)
         t = t_fuzz.copy()
         spec = None
         if self.coat:
@@ -276,7 +280,7 @@ class _Dielectric:
         upper = np.array([1.0, DB_MAX])
         if self.fuzz:
             cols = np.concatenate([cols, fuzz_col[:, :, None]], axis=2)
-            upper = np.r_[upper, 1.0]
+            upper = np.r_[upper, max(fuzz_weight, 1e-12)]
         return _shared_solve(cols, spec, d.target, upper)
 
     def profile_ior(self, alpha: float, fuzz_alpha: float, fuzz_col=None) -> tuple[float, float]:
@@ -311,21 +315,37 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
         return fuzz_cols[fa]
 
     at_bound = {}
-    fuzz_alpha, alpha, e = 0.25, 0.1, 1.5 if ior is None else ior
+    fuzz_alpha, alpha, e, fw = 0.25, 0.1, 1.5 if ior is None else ior, 1.0
     if fuzz:
-        # Fuzz roughness first with the coating absent (its lobe is far narrower), then the coating's roughness.
+        # Fuzz roughness first with the coating absent (its lobe is far narrower), the fuzz weight profiled
+        # out at each (no renders: it only changes the tables); then the coating's roughness (weight 1).
         plain = _Dielectric(data, False, True, None)
-        fuzz_alpha, _, at_bound["fuzz_roughness"] = _search(lambda g: plain.solve(0.1, 1.5, math.exp(g), fuzz_col(math.exp(g)))[0], FUZZ_ALPHA_BOUNDS)
+        weights: dict[float, float] = {}
+
+        def fuzz_cost(g: float) -> float:
+            fa = math.exp(g)
+            cost = lambda v: plain.solve(0.1, 1.5, fa, fuzz_col(fa), v)[0]  # noqa: E731
+            res = minimize_scalar(cost, bounds=(0.0, 1.0), method="bounded", options={"xatol": 1e-3})
+            best = min([(float(res.fun), float(res.x)), (cost(0.0), 0.0), (cost(1.0), 1.0)])
+            weights[fa] = best[1]
+            return best[0]
+
+        fuzz_alpha, _, at_bound["fuzz_roughness"] = _search(fuzz_cost, FUZZ_ALPHA_BOUNDS)
+        fw = 1.0 if coat else weights[fuzz_alpha]  # _search returns an evaluated point
         bar.update(1)
     if coat:
         alpha, _, at_bound["specular_roughness"] = _search(lambda g: prob.profile_ior(math.exp(g), fuzz_alpha, fuzz_col(fuzz_alpha))[0], ALPHA_BOUNDS)
         e = prob.profile_ior(alpha, fuzz_alpha, fuzz_col(fuzz_alpha))[1]
         bar.update(1)
-    r2, amps, w = prob.solve(alpha, e, fuzz_alpha, fuzz_col(fuzz_alpha))
+    r2, amps, w = prob.solve(alpha, e, fuzz_alpha, fuzz_col(fuzz_alpha), fw)
     base, sigma, sigma_clamped, color_clamped = _base_params(amps)
     kw = dict(base_color=base, base_diffuse_roughness=sigma, specular_weight=min(max(w, 0.0), 1.0) if coat else 0.0,
               specular_roughness=math.sqrt(alpha), specular_ior=e, coat=coat)
-    brdf = SheenBRDF(fuzz_color=np.clip(amps[:, 2], 0, 1), fuzz_roughness=math.sqrt(fuzz_alpha), **kw) if fuzz else DielectricBRDF(**kw)
+    if fuzz:
+        color = np.clip(amps[:, 2] / fw, 0, 1) if fw > 0 else np.zeros(len(amps))
+        brdf = SheenBRDF(fuzz_color=color, fuzz_roughness=math.sqrt(fuzz_alpha), fuzz_weight=fw, **kw)
+    else:
+        brdf = DielectricBRDF(**kw)
     extra = {"sigma_clamped": sigma_clamped, "base_color_clamped": color_clamped,
              "ior_at_bound": bool(coat and ior is None and min(abs(e - IOR_BOUNDS[0]), abs(e - IOR_BOUNDS[1])) < 5 * IOR_XTOL)}
     return brdf, r2, at_bound, extra
@@ -333,7 +353,7 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
 
 def _fit_conductor(data: _Data, bar) -> tuple:
     """Roughness search and per-channel F82 amplitudes of the conductor family: (brdf, report entries)."""
-    flat = layered_rows(np.zeros((1, 4)), 0.1, 1.5, 0.5, False, False)[0]
+    flat = layered_rows(np.zeros((1, 4)), 0.1, 1.5, 0.5, False, 0.0)[0]
 
     def solve(alpha: float):
         mom = data.moments(alpha, flat)
