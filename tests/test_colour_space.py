@@ -69,3 +69,16 @@ def test_brdf_file_colour_space_default_old_files_and_bad_values(tmp_path):
     with pytest.raises(InputError, match=r"b\.json: unknown colour space 'srgb'"):
         save_brdf(tmp_path / "b.json", Lambertian(ALBEDO), colour_space="srgb")
     assert not (tmp_path / "b.json").exists() and brdf_colour_space(tmp_path / "x.binary") is None
+
+
+def test_probe_keeps_the_captures_colour_space(tmp_path, capsys):
+    from brdfrig.hdr.exr import read_exr
+    from test_probe import procedural_map, render_ball
+
+    ball = tmp_path / "ball.exr"
+    write_exr(ball, render_ball(procedural_map(16, 32), (64, 64), (32.3, 31.8, 26.0), background=0.3),
+              attributes={"colour_space": "acescg"})
+    assert main(["probe", str(ball), "--albedo", "0.7", "--width", "32", "-o", str(tmp_path / "env.exr")]) == 0
+    attrs = read_exr(tmp_path / "env.exr")[2]
+    assert attrs["colour_space"] == "acescg"
+    assert attrs["chromaticities"][:2] == pytest.approx((0.713, 0.293), abs=1e-3)  # ACEScg (AP1) red primary

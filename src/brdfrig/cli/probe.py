@@ -12,7 +12,9 @@ chrome (`--fresnel`).
 
 The output is a lat-long map in OpenEXR's LatLongMap convention (MATH.md);
 directions the ball does not show (the cone behind the ball, the camera's
-reflection if masked) have zero radiance and `mask = 0`.
+reflection if masked) have zero radiance and `mask = 0`.  The colour space the
+input EXRs declare (`brdfrig merge --colour-space`) is kept: `brdfrig:colour_space`
+and the standard `chromaticities` (inputs in different spaces are refused).
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ def run(args) -> int:
     import numpy as np
 
     from brdfrig.errors import InputError
+    from brdfrig.hdr.colour import chromaticities, declared_colour_space
     from brdfrig.hdr.exr import read_image, write_exr
     from brdfrig.hdr.probe import CHROME_IOR, DEFAULT_RIM, combine_probe, probe_to_latlong, unseen_cone_deg
 
@@ -82,6 +85,7 @@ def run(args) -> int:
         raise InputError(f"--width must be an even integer{WIDTH.text()}, got {args.width}")
     if args.circle is not None and not args.circle[2] > 0:
         raise InputError(f"--circle radius must be > 0, got {args.circle[2]:g}")
+    colour_space = declared_colour_space(args.images)  # the merged captures' space, kept by the lat-long map
     probe = combine_probe([read_image(path) for path in args.images],
                           None if args.circle is None else [tuple(args.circle)], names=[str(p) for p in args.images],
                           statistic=args.statistic, albedo=args.albedo, albedo_patches=args.albedo_patches)
@@ -102,9 +106,11 @@ def run(args) -> int:
         "albedo_angle_deg": probe.albedo_angle_deg,
         "fresnel_ior": None if fresnel is None else list(fresnel),
         "rotation_statistic": args.statistic if several else None,
+        "colour_space": colour_space,
     }
+    space_xy = chromaticities(colour_space)
     write_exr(args.output, latlong, {"mask": seen.astype(np.float32)}, attributes, latlong=True,
-              overwrite=not args.no_clobber)
+              standard={} if space_xy is None else {"chromaticities": space_xy}, overwrite=not args.no_clobber)
     unseen = 1 - float(np.mean(seen))
     albedo_text = "1 (uncalibrated)" if probe.albedo is None else ", ".join(f"{a:.4g}" for a in probe.albedo)
     c = probe.circle
