@@ -99,7 +99,7 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
 
     out = tmp_path / "out"
     argv = ["bench", "--measured", "--materials", "rgl/acrylic_felt_green,nielsen/cardboard", "--models", "auto,diffuse",
-            "--size", "16", "--env-rows", "16", "--relight-probes", "ennis", "--no-progress", "--no-warm-up",
+            "--size", "16", "--env-rows", "16", "--relight-probes", "ennis", "--scenes", "1", "--noise", "0", "--no-progress", "--no-warm-up",
             "--out", str(out)]
     assert main(argv) == 0
     text = capsys.readouterr().out

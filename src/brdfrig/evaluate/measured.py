@@ -26,6 +26,9 @@ Module CLI (also ``brdfrig bench --measured``)::
 
     python -m brdfrig.evaluate.measured --materials rgl/acrylic_felt_green,nielsen/cardboard \\
         --models auto,microfacet --scenes 1 --noise 0.01 --out measured-out
+
+Without ``--scenes``/``--noise`` the run is the whole benchmark: one and twelve
+scenes, noise-free and 1% noise.
 """
 
 from __future__ import annotations
@@ -452,10 +455,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="materials (group/name or name; default: every one under --measured-dir)")
     g.add_argument("--models", type=_split, default=None, metavar="MODEL,...",
                    help="models (default: every model of the fitter, auto first)")
-    g.add_argument("--scenes", type=int, nargs="+", default=[1], metavar="N",
-                   help="scene counts (1 = the fit probe; 12 = turned in 30 degree steps; default: 1)")
-    g.add_argument("--noise", type=float, nargs="+", default=[0.0], metavar="SIGMA",
-                   help="relative pixel noise levels (default: 0; e.g. --noise 0 0.01)")
+    g.add_argument("--scenes", type=int, nargs="+", default=[1, 12], metavar="N",
+                   help="scene counts (1 = the fit probe; 12 = turned in 30 degree steps; default: 1 12; "
+                        "split a long run with --scenes 1 and --scenes 12)")
+    g.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.01], metavar="SIGMA",
+                   help="relative pixel noise levels, seeded (default: 0 0.01)")
     g.add_argument("--size", type=int, default=96, help="sphere image size in pixels (default: %(default)s)")
     g.add_argument("--fit-probe", default="grace", help="probe of the fit (default: %(default)s)")
     g.add_argument("--relight-probes", type=_split, default=["ennis", "pisa"], metavar="NAME,...",
