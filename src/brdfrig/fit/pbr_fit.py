@@ -15,7 +15,8 @@ family          linear amplitudes (bounds)                            shape para
                 ``[0, S(1/7)]`` (exact 2-variable QP)
 ``sheen``       per channel ``dA``, ``dB``, ``fuzz_weight fuzz_color``  ``fuzz alpha``, ``fuzz_weight`` in [0, 1]
                 in [0, fuzz_weight] (+ shared ``specular_weight``     (inner, no renders); with ``coat=True``
-                with ``coat``)                                        ``fuzz_weight`` 1 and ``alpha``, ``ior`` 1.5
+                with ``coat``)                                        ``fuzz_weight`` 1, then ``alpha`` and ``ior``
+                                                                      as for ``dielectric``
 ==============  ====================================================  ===========================================
 
 The Oren-Nayar slope deviation follows from ``dB / dA`` (:func:`brdfrig.fit.microfacet._oren_nayar`).
