@@ -45,7 +45,7 @@ second differences continue the table linearly and the constraints keep it non-n
 non-increasing in ``theta_h``); values are finite everywhere.
 
 Measured (one scene, 96 px sphere, fit under grace 128 x 64, relit under ennis 128 x 64, noise-free,
-relative RMS; defaults; ``fit_microfacet`` beside it): rgl/acrylic_felt_green 14.6% (microfacet 40.7%),
+relative RMS; defaults; ``fit_microfacet`` beside it): rgl/acrylic_felt_green 14.7% (microfacet 40.7%),
 rgl/paper_blue 14.9% (15.6%), rgl/irid_flake_paint1 22.5% (32.5%), rgl/satin_blue 17.2% (6.4%).  One
 image leaves the table ill-determined: with the smoothness at the check pixels' choice (``lam_rel`` ~ 1e-6)
 the felt reproduced its own image to 0.9% and relit at 65-135%.
