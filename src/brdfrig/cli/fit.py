@@ -163,6 +163,7 @@ def run(args) -> int:
         say(f"wrote {report_path}")
     if args.json:
         print_json({"brdf": str(out.resolve()), "model": result.brdf.model, "colour_space": colour_space,
-                    "inputs": inputs, "report": rep.to_dict(), "figure": args.figure and str(Path(args.figure).resolve()),
+                    "inputs": inputs, "report": rep.to_dict(),
+                    "figure": str(Path(args.figure).resolve()) if args.figure else None,
                     "html_report": str(report_path.resolve()) if args.report else None})
     return 0
