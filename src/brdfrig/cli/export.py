@@ -44,6 +44,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import json
 
+    from brdfrig import __version__
+    from brdfrig.cli.library import open_library
     from brdfrig.errors import InputError
     from brdfrig.export.formats import SUFFIXES
     from brdfrig.export.run import export_brdf
@@ -59,6 +61,8 @@ def run(args) -> int:
         options["scene_env"] = str(Path(args.scene).resolve())
     result = export_brdf(open_brdf(args.brdf), args.format, out, source=str(Path(args.brdf).resolve()),
                          colour_space=brdf_colour_space(args.brdf), progress=not args.no_progress, **options)
+    with open_library(args) as library:
+        library.record_export(args.brdf, args.format, out, result.relative_rms, __version__)
     if args.json:
         print(json.dumps(jsonable(result.to_dict()), indent=1))
         return 0
