@@ -15,6 +15,7 @@ from brdfrig.fit.analytic import GGX, Lambertian
 from brdfrig.fit.fitter import fit_brdf
 from brdfrig.fit.scene import Environment, Scene
 from brdfrig.hdr.envmap import latlong_directions
+from brdfrig.hdr.sphere import sphere_pixels
 from test_fit_scenes import ALBEDO, GGX_MATERIAL, make_scenes, probes, relight_error, rotations, sphere  # noqa: F401
 
 
@@ -385,3 +386,16 @@ def test_full_plus_prior_warns_on_the_regularised_condition_number_only(probes):
     np.testing.assert_allclose(reg, np.sqrt(1 + 1 / lam**2), rtol=1e-9)
     assert np.all(lam >= PRIOR_LAM_MIN[False] * (1 - 1e-12)) and np.all(reg < COND_WARN)
     assert not any("condition number" in w for w in prior.report.warnings), prior.report.warnings
+
+
+def test_a_uniform_sky_fits_a_diffuse_model_with_its_bands_left_out():
+    """Only band 0 has lighting energy: the diffuse fit uses it alone and says so (no crash)."""
+    from brdfrig.lighting import environment_from_latlong
+
+    env = environment_from_latlong(np.full((16, 32, 3), 2.0))
+    px = sphere_pixels((48, 48), (24, 24, 24))
+    truth = Lambertian(np.array([0.5, 0.4, 0.3]))
+    scene = Scene(env, px.normals, truth.predict(env, px.normals), px.weights)
+    result = fit_brdf([scene], model="diffuse", lmax=2, progress=False)
+    assert any("bands [1, 2] have no lighting energy" in w for w in result.report.warnings)
+    np.testing.assert_allclose(result.brdf.predict(env, px.normals), scene.radiance, rtol=1e-6)

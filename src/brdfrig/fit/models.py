@@ -120,7 +120,10 @@ class LinearBRDF:
 
 
 def _zonal_series(coef: np.ndarray, bands: tuple[int, ...], cos: np.ndarray) -> np.ndarray:
-    """``sum_l coef_l (2l+1)/(4 pi) P_l(cos)``: coef (nb, C), cos (N,) -> (N, C)."""
+    """``sum_l coef_l (2l+1)/(4 pi) P_l(cos)``: coef (nb, C), cos (N,) -> (N, C) (zero when ``bands`` is empty)."""
+    cos = np.asarray(cos, dtype=np.float64)
+    if not bands:
+        return np.zeros(cos.shape + (np.shape(coef)[-1],))
     p = np.stack([(2 * l + 1) / (4 * np.pi) * eval_legendre(l, cos) for l in bands], axis=1)
     return p @ coef
 
