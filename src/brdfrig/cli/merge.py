@@ -147,9 +147,9 @@ def _summary(merged, output) -> str:
     import numpy as np
 
     res = merged.merge
-    ok = res.radiance[res.flags == 0]
-    pos = ok[ok > 0]
-    rng = f"{pos.max() / pos.min():.3g}:1" if pos.size else "n/a"
+    ok = (res.flags == 0) & (res.radiance > 0)  # masked reductions: no copy of the radiance
+    hi = np.max(res.radiance, where=ok, initial=0.0)
+    rng = f"{hi / np.min(res.radiance, where=ok, initial=np.inf):.3g}:1" if hi > 0 else "n/a"
     changed = "" if np.array_equal(res.times, res.nominal_times) else \
         " (times re-estimated from overlap: " + ", ".join(f"{t:.6g}" for t in res.times) + " s)"
     h, w = res.radiance.shape[:2]

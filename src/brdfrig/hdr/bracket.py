@@ -46,7 +46,7 @@ import numpy as np
 from brdfrig.errors import InputError
 from brdfrig.hdr.colour import convert_merged, raw_file_matrix
 from brdfrig.hdr.merge import DEFAULT_FULL_WELL, DEFAULT_READ_NOISE, MergeResult, merge_bracket
-from brdfrig.hdr.raw import Exposure, is_raw, read_exposure, read_frame
+from brdfrig.hdr.raw import Exposure, is_raw, read_exposure
 
 __all__ = ["MergePolicy", "BracketMerge", "merge_files", "effective_times", "check_distinct", "RAW_CLIP_RADIUS"]
 
@@ -159,20 +159,51 @@ def check_distinct(files: Sequence[Path]) -> None:
                 raise InputError(f"{a} is given twice (also as {b}): a bracket needs distinct frames")
 
 
-def _read_frames(files: Sequence[Path]) -> tuple[list[np.ndarray], list[bool]]:
-    """The frames of a bracket (one size, no two identical) and whether each is linear by its format."""
-    frames, linear = [], []
+def _open_frames(files: Sequence[Path]) -> tuple[list, list[bool]]:
+    """Frame sources of a bracket (one size, no two identical) and whether each is linear by its format.
+
+    Raw files are decoded whole (:func:`brdfrig.hdr.raw.decode_raw`); other images are read by rows.
+    """
+    from brdfrig.hdr.frames import ArrayFrame, ImageFileFrame
+    from brdfrig.hdr.raw import decode_raw
+
+    sources, linear = [], []
     for f in files:
-        image, is_linear = read_frame(f)
-        if frames and image.shape != frames[0].shape:
-            raise InputError(f"{f} has size {image.shape[1]}x{image.shape[0]}, {files[0]} has "
-                             f"{frames[0].shape[1]}x{frames[0].shape[0]}: a bracket must have one image size")
-        for g, other in zip(files, frames):
-            if np.array_equal(image, other):
+        src = ArrayFrame(decode_raw(f), str(f), 1.0) if is_raw(f) else ImageFileFrame(f)
+        if sources and src.shape != sources[0].shape:
+            raise InputError(f"{f} has size {src.shape[1]}x{src.shape[0]}, {files[0]} has "
+                             f"{sources[0].shape[1]}x{sources[0].shape[0]}: a bracket must have one image size")
+        for g, other in zip(files, sources):
+            if _same_pixels(src, other):
                 raise InputError(f"{f} and {g} hold identical pixels: the same frame given twice")
-        frames.append(image)
-        linear.append(is_linear)
-    return frames, linear
+        sources.append(src)
+        linear.append(is_raw(f) or src.is_float)
+    return sources, linear
+
+
+def _same_pixels(a, b, rows: int = 256) -> bool:
+    """Whether two sources of one shape hold the same pixels (sample bands first, then band by band)."""
+    from brdfrig.hdr.merge import sample_bands
+
+    h = a.shape[0]
+    if not all(np.array_equal(a.rows(y0, y1), b.rows(y0, y1)) for y0, y1 in sample_bands(a.shape, 20_000, 2)):
+        return False
+    return all(np.array_equal(a.rows(y, min(h, y + rows)), b.rows(y, min(h, y + rows))) for y in range(0, h, rows))
+
+
+def _samples(sources) -> list[np.ndarray]:
+    """Evenly spaced bands of rows of every frame, as fractions of full scale (float64)."""
+    from brdfrig.hdr.merge import sample_bands
+
+    return [np.concatenate([np.asarray(s.rows(y0, y1), np.float64) / s.saturation
+                            for y0, y1 in sample_bands(s.shape)]) for s in sources]
+
+
+def _centre(source, size: int = 1024) -> np.ndarray:
+    """The central ``size x size`` window of a source, as fractions of full scale."""
+    h, w = source.shape[:2]
+    y0, x0 = max(0, (h - size) // 2), max(0, (w - size) // 2)
+    return np.asarray(source.rows(y0, min(h, y0 + size))[:, x0:x0 + size], np.float64) / source.saturation
 
 
 def _times(files: Sequence[Path], times: Sequence[float] | None) -> tuple[list[float], list[Exposure] | None, str]:
@@ -184,14 +215,19 @@ def _times(files: Sequence[Path], times: Sequence[float] | None) -> tuple[list[f
     return effective_times(exposures), exposures, "metadata"
 
 
-def _response(frames, times, linear, files, policy: MergePolicy) -> tuple[list[np.ndarray], str, str]:
-    """Linearised frames, the response applied (``"linear"`` or ``"recover"``) and why."""
+def _response(sources, times, linear, files, policy: MergePolicy) -> tuple[list, str, str]:
+    """Linearised frame sources, the response applied (``"linear"`` or ``"recover"``) and why.
+
+    The curve is recovered from evenly spaced bands of rows (:func:`brdfrig.hdr.merge.sample_bands`).
+    """
+    from brdfrig.hdr.frames import MappedFrame
     from brdfrig.hdr.response import linearity, linearize, power_slope, recover_response
 
     if all(linear):
-        return frames, "linear", "raw or floating-point frames are linear"
+        return sources, "linear", "raw or floating-point frames are linear"
     if policy.response == "linear":
-        return frames, "linear", "linear response requested"
+        return sources, "linear", "linear response requested"
+    frames = _samples(sources)
     if len(frames) < 2:
         raise InputError("response recovery needs at least 2 frames; give --response linear for one frame")
     levels = 256 if all(f.suffix.lower() in (".jpg", ".jpeg") for f in files) else 1024
@@ -199,16 +235,16 @@ def _response(frames, times, linear, files, policy: MergePolicy) -> tuple[list[n
     if policy.response == "auto":
         test = linearity(curve)
         if test.linear:
-            return frames, "linear", test.describe()
+            return sources, "linear", test.describe()
         reason = test.describe() + ": linearised by it"
     else:
         reason = "response recovery requested"
     if levels > 256:  # 4x fewer samples per bin than 8-bit data: smooth harder, around the curve's power law
         curve = recover_response(frames, times, levels=levels, smoothness=_SMOOTHNESS_16BIT, slope=power_slope(curve))
-    return [linearize(f, curve) for f in frames], "recover", reason
+    return [MappedFrame(s, lambda rows: linearize(rows, curve)) for s in sources], "recover", reason
 
 
-def _clip_radius(files, frames, times, policy: MergePolicy) -> tuple[int, str]:
+def _clip_radius(files, sources, times, policy: MergePolicy) -> tuple[int, str]:
     """Clip radius (pixels) by what the frames are, and why."""
     from brdfrig.hdr.demosaic import demosaic_radius
 
@@ -216,7 +252,7 @@ def _clip_radius(files, frames, times, policy: MergePolicy) -> tuple[int, str]:
         return int(policy.clip_radius), "given"
     if all(is_raw(f) for f in files):
         return RAW_CLIP_RADIUS, "raw files, decoded with bilinear demosaicing (3x3 support)"
-    support = demosaic_radius(frames, times) if len(frames) > 1 else None
+    support = demosaic_radius([_centre(s) for s in sources], times) if len(sources) > 1 else None
     if support is None:
         return RAW_CLIP_RADIUS, ("too few well-exposed neighbours to measure the noise correlation: "
                                  f"{RAW_CLIP_RADIUS}, as for demosaiced frames")
@@ -225,7 +261,7 @@ def _clip_radius(files, frames, times, policy: MergePolicy) -> tuple[int, str]:
 
 def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergePolicy(), *,
                 times: Sequence[float] | None = None) -> BracketMerge:
-    """Read, linearise and merge one bracket of camera files (raw, TIFF, JPEG, PNG, EXR).
+    """Read, linearise and merge one bracket of camera files (raw, TIFF, JPEG, PNG, EXR), streaming the rows.
 
     Parameters
     ----------
@@ -245,10 +281,10 @@ def merge_files(paths: Sequence[str | os.PathLike], policy: MergePolicy = MergeP
     check_distinct(files)
     used_times, exposures, source = _times(files, times)
     matrix = raw_file_matrix(files[0], policy.colour_space)
-    frames, linear = _read_frames(files)
-    frames, response, response_reason = _response(frames, used_times, linear, files, policy)
-    radius, clip_reason = _clip_radius(files, frames, used_times, policy)
-    res = merge_bracket(frames, used_times, weighting=policy.weighting, saturation=1.0,
+    sources, linear = _open_frames(files)
+    sources, response, response_reason = _response(sources, used_times, linear, files, policy)
+    radius, clip_reason = _clip_radius(files, sources, used_times, policy)
+    res = merge_bracket(sources, used_times, weighting=policy.weighting,
                         clip_threshold=policy.clip_threshold, clip_radius=radius, align=policy.align,
                         reestimate_times=policy.reestimate_times, full_well=policy.full_well,
                         read_noise=policy.read_noise, names=[str(f) for f in files])

@@ -60,6 +60,61 @@ def _rationals(values, signed: bool) -> list[int]:
     return out
 
 
+def _checked(path, cfa, pattern, black_level, white_level, color_matrix, as_shot_neutral, exposure_time_s,
+             f_number, iso) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ValueError naming the file for a bad argument of :func:`write_dng`; the black levels (4,), matrix, neutral."""
+    if cfa.ndim != 2 or cfa.dtype != np.uint16:
+        raise ValueError(f"write_dng {path}: cfa must be a 2-D uint16 array, got {cfa.dtype} {cfa.shape}")
+    if cfa.shape[0] % 2 or cfa.shape[1] % 2 or min(cfa.shape) < _MIN_SIDE:
+        raise ValueError(f"write_dng {path}: cfa height and width must be even and >= {_MIN_SIDE} "
+                         f"(LibRaw rejects smaller images), got {cfa.shape}")
+    if pattern not in CFA_PATTERNS:
+        raise ValueError(f"write_dng {path}: pattern must be one of {sorted(CFA_PATTERNS)}, got {pattern!r}")
+    black = np.broadcast_to(np.asarray(black_level, dtype=float), (4,)) if np.ndim(black_level) == 0 \
+        else np.asarray(black_level, dtype=float)
+    if black.shape != (4,) or np.any(black < 0) or np.any(black >= white_level):
+        raise ValueError(f"write_dng {path}: black_level must be 1 or 4 values in [0, white_level), got {black_level}")
+    if not 0 < int(white_level) <= 65535:
+        raise ValueError(f"write_dng {path}: white_level must be in 1..65535, got {white_level}")
+    cm = np.asarray(color_matrix, dtype=float)
+    neutral = np.asarray(as_shot_neutral, dtype=float)
+    if cm.shape != (3, 3) or not np.all(np.isfinite(cm)):
+        raise ValueError(f"write_dng {path}: color_matrix must be a finite 3x3 matrix")
+    if neutral.shape != (3,) or np.any(neutral <= 0):
+        raise ValueError(f"write_dng {path}: as_shot_neutral must be 3 positive values, got {as_shot_neutral}")
+    for name, value in (("exposure_time_s", exposure_time_s), ("f_number", f_number), ("iso", iso)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"write_dng {path}: {name} must be a positive number, got {value}")
+    return black, cm, neutral
+
+
+def _dng_tags(pattern, black, white_level, cm, neutral, exposure_time_s, f_number, iso, make, model) -> list:
+    """The DNG and EXIF tags of IFD0, as tifffile ``extratags``."""
+    ident = f"{make} {model}".encode("ascii", "replace").decode()
+    tags = [
+        (254, _LONG, 1, 0, True),  # NewSubfileType: main image
+        (271, _ASCII, 0, make, True),  # Make
+        (272, _ASCII, 0, model, True),  # Model
+        (33421, _SHORT, 2, (2, 2), True),  # CFARepeatPatternDim
+        (33422, _BYTE, 4, CFA_PATTERNS[pattern], True),  # CFAPattern
+        (33434, _RATIONAL, 1, _rationals([exposure_time_s], False), True),  # ExposureTime
+        (33437, _RATIONAL, 1, _rationals([f_number], False), True),  # FNumber
+        (34855, _SHORT, 1, int(round(min(iso, 65535))), True),  # ISOSpeedRatings
+        (50706, _BYTE, 4, (1, 4, 0, 0), True),  # DNGVersion
+        (50707, _BYTE, 4, (1, 1, 0, 0), True),  # DNGBackwardVersion
+        (50708, _ASCII, 0, ident, True),  # UniqueCameraModel
+        (50710, _BYTE, 3, (0, 1, 2), True),  # CFAPlaneColor
+        (50711, _SHORT, 1, 1, True),  # CFALayout: rectangular
+        (50713, _SHORT, 2, (2, 2), True),  # BlackLevelRepeatDim
+        (50714, _RATIONAL, 4, _rationals(black, False), True),  # BlackLevel
+        (50717, _LONG, 1, int(white_level), True),  # WhiteLevel
+        (50721, _SRATIONAL, 9, _rationals(cm, True), True),  # ColorMatrix1
+        (50728, _RATIONAL, 3, _rationals(neutral, False), True),  # AsShotNeutral
+        (50778, _SHORT, 1, 21, True),  # CalibrationIlluminant1: D65
+    ]
+    return tags
+
+
 def write_dng(
     path: str | os.PathLike,
     cfa: np.ndarray,
@@ -113,51 +168,9 @@ def write_dng(
 
     path = Path(path)
     cfa = np.asarray(cfa)
-    if cfa.ndim != 2 or cfa.dtype != np.uint16:
-        raise ValueError(f"write_dng {path}: cfa must be a 2-D uint16 array, got {cfa.dtype} {cfa.shape}")
-    if cfa.shape[0] % 2 or cfa.shape[1] % 2 or min(cfa.shape) < _MIN_SIDE:
-        raise ValueError(f"write_dng {path}: cfa height and width must be even and >= {_MIN_SIDE} "
-                         f"(LibRaw rejects smaller images), got {cfa.shape}")
-    if pattern not in CFA_PATTERNS:
-        raise ValueError(f"write_dng {path}: pattern must be one of {sorted(CFA_PATTERNS)}, got {pattern!r}")
-    black = np.broadcast_to(np.asarray(black_level, dtype=float), (4,)) if np.ndim(black_level) == 0 \
-        else np.asarray(black_level, dtype=float)
-    if black.shape != (4,) or np.any(black < 0) or np.any(black >= white_level):
-        raise ValueError(f"write_dng {path}: black_level must be 1 or 4 values in [0, white_level), got {black_level}")
-    if not 0 < int(white_level) <= 65535:
-        raise ValueError(f"write_dng {path}: white_level must be in 1..65535, got {white_level}")
-    cm = np.asarray(color_matrix, dtype=float)
-    neutral = np.asarray(as_shot_neutral, dtype=float)
-    if cm.shape != (3, 3) or not np.all(np.isfinite(cm)):
-        raise ValueError(f"write_dng {path}: color_matrix must be a finite 3x3 matrix")
-    if neutral.shape != (3,) or np.any(neutral <= 0):
-        raise ValueError(f"write_dng {path}: as_shot_neutral must be 3 positive values, got {as_shot_neutral}")
-    for name, value in (("exposure_time_s", exposure_time_s), ("f_number", f_number), ("iso", iso)):
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"write_dng {path}: {name} must be a positive number, got {value}")
-
-    ident = f"{make} {model}".encode("ascii", "replace").decode()
-    tags = [
-        (254, _LONG, 1, 0, True),  # NewSubfileType: main image
-        (271, _ASCII, 0, make, True),  # Make
-        (272, _ASCII, 0, model, True),  # Model
-        (33421, _SHORT, 2, (2, 2), True),  # CFARepeatPatternDim
-        (33422, _BYTE, 4, CFA_PATTERNS[pattern], True),  # CFAPattern
-        (33434, _RATIONAL, 1, _rationals([exposure_time_s], False), True),  # ExposureTime
-        (33437, _RATIONAL, 1, _rationals([f_number], False), True),  # FNumber
-        (34855, _SHORT, 1, int(round(min(iso, 65535))), True),  # ISOSpeedRatings
-        (50706, _BYTE, 4, (1, 4, 0, 0), True),  # DNGVersion
-        (50707, _BYTE, 4, (1, 1, 0, 0), True),  # DNGBackwardVersion
-        (50708, _ASCII, 0, ident, True),  # UniqueCameraModel
-        (50710, _BYTE, 3, (0, 1, 2), True),  # CFAPlaneColor
-        (50711, _SHORT, 1, 1, True),  # CFALayout: rectangular
-        (50713, _SHORT, 2, (2, 2), True),  # BlackLevelRepeatDim
-        (50714, _RATIONAL, 4, _rationals(black, False), True),  # BlackLevel
-        (50717, _LONG, 1, int(white_level), True),  # WhiteLevel
-        (50721, _SRATIONAL, 9, _rationals(cm, True), True),  # ColorMatrix1
-        (50728, _RATIONAL, 3, _rationals(neutral, False), True),  # AsShotNeutral
-        (50778, _SHORT, 1, 21, True),  # CalibrationIlluminant1: D65
-    ]
+    black, cm, neutral = _checked(path, cfa, pattern, black_level, white_level, color_matrix, as_shot_neutral,
+                                  exposure_time_s, f_number, iso)
+    tags = _dng_tags(pattern, black, white_level, cm, neutral, exposure_time_s, f_number, iso, make, model)
     with temp_path(path) as tmp:
         tifffile.imwrite(
             tmp,

@@ -65,6 +65,26 @@ def _colour_names(channels: int, path: Path, what: str) -> tuple[str, ...]:
     raise ValueError(f"{path}: {what} must have 1 or 3 colour channels, got {channels}")
 
 
+def _channels(path: Path, rgb: np.ndarray, extra_channels, dtype, allow_nonfinite: bool) -> dict[str, np.ndarray]:
+    """The named contiguous planes of an EXR (colour, then extra images), each checked unless ``allow_nonfinite``."""
+    channels: dict[str, np.ndarray] = {}
+    for name, plane in zip(_colour_names(rgb.shape[2], path, "image"), np.moveaxis(rgb, 2, 0)):
+        channels[name] = np.ascontiguousarray(plane, dtype=dtype)
+    for key, image in (extra_channels or {}).items():
+        image = np.asarray(image)
+        if image.shape[:2] != rgb.shape[:2] or image.ndim not in (2, 3):
+            raise ValueError(f"{path}: extra channel {key!r} has shape {image.shape}, image is {rgb.shape[:2]}")
+        if not allow_nonfinite:
+            check_output_values(image, path, f"channel {key!r}")
+        if image.ndim == 2:
+            channels[key] = np.ascontiguousarray(image, dtype=dtype)
+        else:
+            for name, plane in zip(_colour_names(image.shape[2], path, f"extra channel {key!r}"),
+                                   np.moveaxis(image, 2, 0)):
+                channels[f"{key}.{name}"] = np.ascontiguousarray(plane, dtype=dtype)
+    return channels
+
+
 def write_exr(
     path: str | os.PathLike,
     rgb: np.ndarray,
@@ -122,22 +142,7 @@ def write_exr(
         raise ValueError(f"{path}: image must be (H, W) or (H, W, C), got shape {rgb.shape}")
     if not allow_nonfinite:
         check_output_values(rgb, path, "the image", nonnegative=True)
-    dtype = np.float16 if half else np.float32
-    channels: dict[str, np.ndarray] = {}
-    for name, plane in zip(_colour_names(rgb.shape[2], path, "image"), np.moveaxis(rgb, 2, 0)):
-        channels[name] = np.ascontiguousarray(plane, dtype=dtype)
-    for key, image in (extra_channels or {}).items():
-        image = np.asarray(image)
-        if image.shape[:2] != rgb.shape[:2] or image.ndim not in (2, 3):
-            raise ValueError(f"{path}: extra channel {key!r} has shape {image.shape}, image is {rgb.shape[:2]}")
-        if not allow_nonfinite:
-            check_output_values(image, path, f"channel {key!r}")
-        if image.ndim == 2:
-            channels[key] = np.ascontiguousarray(image, dtype=dtype)
-        else:
-            for name, plane in zip(_colour_names(image.shape[2], path, f"extra channel {key!r}"),
-                                   np.moveaxis(image, 2, 0)):
-                channels[f"{key}.{name}"] = np.ascontiguousarray(plane, dtype=dtype)
+    channels = _channels(path, rgb, extra_channels, np.float16 if half else np.float32, allow_nonfinite)
     header: dict = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
                     **_typed_attributes(path, {"tool_version": _tool_version(), **(attributes or {})}),
                     **_standard_attributes(path, standard or {})}

@@ -46,9 +46,16 @@ so that the median of ``t_estimated / t_nominal`` is 1 (one wrong nominal
 time does not shift the others).  Optional alignment (OpenCV's
 median threshold bitmaps) runs before the re-estimation.
 
-The per-pixel loop is one fused numba kernel, parallel over blocks of
-pixels: each block of every frame is gathered once (frames read in their own
-dtype, no stacked copy of the bracket), then merged per pixel and channel.
+Streaming: frames are frame sources (:mod:`brdfrig.hdr.frames`; arrays are
+wrapped) read in bands of ``tile_rows`` rows (plus ``clip_radius`` rows of
+halo for the clipped neighbourhoods), so the merge holds one band of every
+frame, never whole frames; the exposure ratios are measured on evenly spaced
+bands of rows (at most 2e6 pixel-channels per frame).  The outputs are stored
+plane by plane (channel-major), so writing them to EXR copies nothing.  The
+per-pixel loop is one fused numba kernel, parallel over blocks of pixels:
+each block of every frame is gathered once (frames read in their own dtype),
+then merged per pixel and channel.  Alignment needs whole frames: with
+``align=True`` the frames are read whole.
 """
 
 from __future__ import annotations
@@ -62,6 +69,10 @@ import numba as nb
 import numpy as np
 
 from brdfrig.errors import InputError
+from brdfrig.hdr.align import align_frames
+from brdfrig.hdr.exposure_times import RATIO_MAX_SAMPLES, ExposureTimeWarning, estimate_times
+from brdfrig.hdr.frames import ArrayFrame, as_frame, read_whole
+
 __all__ = [
     "MergeResult",
     "SaturationWarning",
@@ -83,26 +94,10 @@ FLAG_SATURATED = 2
 #: Default sensor noise model, in electrons (a typical APS-C/full-frame sensor at base ISO).
 DEFAULT_FULL_WELL = 20000.0
 DEFAULT_READ_NOISE = 5.0
-#: Well-exposed window (fraction of full scale) used to re-estimate exposure ratios.
-#: 0.02 of a 4000 e- well is 80 e-: shot noise dominates a 4 e- read noise and no sample nears the black
-#: level (20 read sigmas); 0.9 stays 0.05 below the merge's clip threshold.
-_RATIO_WINDOW = (0.02, 0.9)
-_RATIO_MIN_SAMPLES = 200
-_RATIO_MAX_SAMPLES = 2_000_000  # pixel-channels read per frame (whole rows, evenly spaced)
-#: Largest relative departure of a re-estimated exposure ratio from the nominal one.
-_RATIO_MAX_DEVIATION = 0.1
-#: Largest relative standard error of a re-estimated exposure ratio (from its residuals).
-_RATIO_MAX_STD_ERROR = 0.002
-#: Outlier trim of the ratio fit, in robust (MAD) sigmas.
-_RATIO_TRIM = 6.0
 
 
 class SaturationWarning(UserWarning):
     """Some pixels are saturated in every frame of a bracket: their radiance is only a lower bound."""
-
-
-class ExposureTimeWarning(UserWarning):
-    """A re-estimated exposure ratio departs too far from the nominal one: the nominal ratio is kept."""
 
 
 @dataclass(frozen=True)
@@ -233,7 +228,8 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
                 out_flag[p, c] = 0
 
 
-def _validate(frames, times, names) -> tuple[list[np.ndarray], np.ndarray, list[str]]:
+def _validate(frames, times, names, saturation) -> tuple[list, np.ndarray, list[str]]:
+    """Frame sources (arrays checked and wrapped), times and names of a bracket; InputError naming the frame."""
     if len(frames) == 0:
         raise InputError("merge: the bracket has no frames")
     names = list(names) if names is not None else [f"frame {k}" for k in range(len(frames))]
@@ -247,22 +243,40 @@ def _validate(frames, times, names) -> tuple[list[np.ndarray], np.ndarray, list[
     for name, t in zip(names, times):
         if not (np.isfinite(t) and t > 0):
             raise InputError(f"merge: {name}: exposure time must be a positive number, got {t}")
-    arrays = []
-    for name, f in zip(names, frames):
-        f = np.asarray(f)
-        if f.ndim == 2:
-            f = f[:, :, None]
-        if f.ndim != 3:
-            raise InputError(f"merge: {name}: expected an (H, W, C) image, got shape {f.shape}")
-        if arrays and f.shape != arrays[0].shape:
-            raise InputError(f"merge: {name} has size {f.shape}, {names[0]} has {arrays[0].shape}: "
+    sources = [_checked_source(f, name, saturation) for name, f in zip(names, frames)]
+    for name, src in zip(names, sources):
+        if src.shape != sources[0].shape:
+            raise InputError(f"merge: {name} has size {src.shape}, {names[0]} has {sources[0].shape}: "
                              "a bracket must have one image size")
-        if not (np.issubdtype(f.dtype, np.integer) or np.issubdtype(f.dtype, np.floating)):
-            raise InputError(f"merge: {name}: unsupported pixel type {f.dtype}")
-        if np.issubdtype(f.dtype, np.floating) and not np.all(np.isfinite(f)):
-            raise InputError(f"merge: {name}: contains NaN/inf pixel values")
-        arrays.append(f)
-    return arrays, times, names
+    return sources, times, names
+
+
+def _checked_source(frame, name: str, saturation: float | None):
+    if hasattr(frame, "rows"):
+        return frame
+    f = np.asarray(frame)
+    if f.ndim == 2:
+        f = f[:, :, None]
+    if f.ndim != 3:
+        raise InputError(f"merge: {name}: expected an (H, W, C) image, got shape {f.shape}")
+    if not (np.issubdtype(f.dtype, np.integer) or np.issubdtype(f.dtype, np.floating)):
+        raise InputError(f"merge: {name}: unsupported pixel type {f.dtype}")
+    if np.issubdtype(f.dtype, np.floating) and not np.all(np.isfinite(f)):
+        raise InputError(f"merge: {name}: contains NaN/inf pixel values")
+    return ArrayFrame(f, name, saturation)
+
+
+def _check_settings(weighting, black_threshold, clip_threshold, clip_radius, sources) -> None:
+    if weighting not in ("optimal", "debevec"):
+        raise InputError(f"merge: weighting must be 'optimal' or 'debevec', got {weighting!r}")
+    if not 0 <= black_threshold < clip_threshold <= 1:
+        raise InputError(f"merge: need 0 <= black_threshold < clip_threshold <= 1, got "
+                         f"{black_threshold}, {clip_threshold}")
+    for src in sources:
+        if not src.saturation > 0:
+            raise InputError(f"merge: saturation must be positive, got {src.saturation}")
+    if isinstance(clip_radius, bool) or not isinstance(clip_radius, (int, np.integer)) or clip_radius < 0:
+        raise InputError(f"merge: clip_radius must be a non-negative integer (pixels), got {clip_radius!r}")
 
 
 @nb.njit(parallel=True, cache=True)
@@ -323,216 +337,72 @@ def clipped_neighbourhood(frame: np.ndarray, clip: float, radius: int) -> np.nda
     return hit.view(bool)
 
 
-def _overlap_ratio(a: np.ndarray, b: np.ndarray, near_clip: np.ndarray, t_a: float, t_b: float,
-                   lo: float, hi: float, min_samples: int) -> tuple[float | None, int, float]:
-    """Exposure ratio ``t_b / t_a`` from the overlap of two frames (``t_a < t_b``).
-
-    Samples are selected on ``(a + b) / (t_a + t_b)``, the radiance estimate
-    of the pair, never on ``a`` or ``b`` alone: selecting on each frame's own
-    noisy value (``a > lo``, ``b < hi``) keeps the upward noise of ``a`` at
-    the bottom of the window and the downward noise of ``b`` at its top, a
-    low bias of the ratio (-1.2% for 1/16 s to 0.5 s on the simulated
-    camera's 4000 e- sensor, with the clipped neighbourhoods excluded), and
-    keeps long-frame values pulled below ``hi`` by clipped neighbours (the
-    pair's sum still sees their true level through ``a``).  Given the sum
-    of the photon counts, a Poisson split between the frames is binomial
-    with the probability ``t_b / (t_a + t_b)`` whatever the radiance, so the
-    ratio of sums over a sum-selected set is unbiased under shot noise
-    (demosaicing is linear, so this holds for interpolated values too).
-    Gross outliers (motion, hot pixels) are trimmed beyond
-    ``_RATIO_TRIM`` robust sigmas of the residual ``b - r a`` scaled by its
-    shot-noise sigma ``sqrt(b + r^2 a)``.
-
-    Returns
-    -------
-    ratio : float or None
-        None if fewer than ``min_samples`` pixel-channels qualify.
-    n : int
-        Pixel-channels used.
-    rel_se : float
-        Relative standard error of ``ratio`` from its residuals (linearised
-        ratio of sums; neighbouring demosaiced values share samples, so it
-        is an underestimate by up to ~2x); inf if ``ratio`` is None.
-    """
-    x = (a + b) / (t_a + t_b)  # NaN (no data after alignment) compares false
-    ok = (x * t_a >= lo) & (x * t_b <= hi) & ~near_clip & (a > 0) & (b > 0)
-    if np.count_nonzero(ok) < min_samples:
-        return None, int(np.count_nonzero(ok)), np.inf
-    a, b = a[ok], b[ok]
-    r = np.exp(np.median(np.log(b / a)))
-    z = (b - r * a) / np.sqrt(b + r * r * a)
-    dev = np.abs(z - np.median(z))
-    mad = np.median(dev)
-    keep = dev <= _RATIO_TRIM * 1.4826 * mad if mad > 0 else np.ones(len(z), bool)  # noiseless: nothing to trim
-    a, b = a[keep], b[keep]
-    ratio = b.sum() / a.sum()
-    rel_se = np.sqrt(np.sum((b - ratio * a) ** 2)) / b.sum()
-    return float(ratio), len(a), float(rel_se)
+def _band(src, y0: int, y1: int, halo: int, clip: float, radius: int):
+    """Rows y0:y1 of a source (own dtype) and, if ``radius``, their clipped neighbourhood (read with a halo)."""
+    h = src.shape[0]
+    a0, a1 = max(0, y0 - halo), min(h, y1 + halo)
+    rows = src.rows(a0, a1)
+    near = clipped_neighbourhood(rows, clip * src.saturation, radius)[y0 - a0:y1 - a0] if radius > 0 else None
+    return rows[y0 - a0:y1 - a0], near
 
 
-def estimate_times(
-    frames: Sequence[np.ndarray],
-    times: Sequence[float],
-    *,
-    saturation: float = 1.0,
-    window: tuple[float, float] = _RATIO_WINDOW,
-    clip: float = 0.95,
-    clip_radius: int = 1,
-    max_deviation: float = _RATIO_MAX_DEVIATION,
-    max_std_error: float = _RATIO_MAX_STD_ERROR,
-    min_samples: int = _RATIO_MIN_SAMPLES,
-    near_clip: Sequence[np.ndarray] | None = None,
-) -> np.ndarray:
-    """Re-estimate exposure times from the overlap of well-exposed pixels.
-
-    For consecutive frames ``a``, ``b`` in order of nominal time
-    (``t_a <= t_b``), the exposure ratio is the ratio of sums ``sum b / sum a``
-    over the pixel-channels
-
-    - whose pair radiance estimate ``x = (a + b) / (t_a + t_b)`` is well
-      exposed in both frames: ``x t_a >= window[0]`` (away from the black
-      level in the shorter frame) and ``x t_b <= window[1]`` (away from the
-      clip level in the longer frame), fractions of ``saturation``;
-    - whose ``(2 clip_radius + 1)^2`` neighbourhood has no value at or above
-      ``clip`` (fraction of ``saturation``) in any channel of either frame
-      (:func:`clipped_neighbourhood`, the pixels the merge weights out):
-      demosaicing interpolates clipped samples into neighbours that stay
-      below the clip level, biased low (``clip_radius=1`` covers the 3x3
-      support of bilinear demosaicing, :func:`brdfrig.hdr.raw.decode_raw`; 0 suits
-      frames that were not demosaiced, in-camera demosaicing may need 2).
-      Selecting on each frame's own values and ignoring neighbourhoods made
-      the 4 s frame of a simulated DNG bracket look 3.19 s long;
-    - not gross outliers of the pair's robust fit (trimmed).
-
-    A pair with fewer than ``min_samples`` such values, or whose ratio has a
-    relative standard error above ``max_std_error`` (a few hundred values at
-    the bottom of the window: a noisy ratio would shift every time chained
-    after it), keeps its nominal ratio; so does a pair whose re-estimated
-    ratio departs from the nominal one by more than ``max_deviation``
-    (relative), with an :class:`ExposureTimeWarning`: camera labels round
-    full-stop times by at most 6.7% (1/15 s for 1/16 s), so a larger
-    departure means motion, flicker or a wrong frame, not rounding.  The
-    chained times are anchored so that the median of ``t_est / t_nominal``
-    is 1.
-
-    Parameters
-    ----------
-    frames : sequence of K (H, W, C) or (H, W) arrays
-        Linear frames (same shape); NaN = no data.
-    times : (K,) float
-        Nominal exposure times in seconds.
-    saturation : float
-        Frame value of full scale.
-    window : (lo, hi)
-        Well-exposed range as fractions of ``saturation``.
-    clip : float
-        Clip level as a fraction of ``saturation`` (the merge's ``clip_threshold``).
-    clip_radius : int
-        Radius in pixels of the demosaicing support around clipped values.
-    max_deviation : float
-        Largest accepted relative departure of a re-estimated ratio from the nominal ratio.
-    max_std_error : float
-        Largest accepted relative standard error of a re-estimated ratio.
-    min_samples : int
-        Minimum overlap size (pixel-channels) for a ratio to be trusted.
-    near_clip : sequence of K (H, W) bool, optional
-        ``clipped_neighbourhood(frame, clip * saturation, clip_radius)`` of
-        each frame, if already computed (:func:`merge_bracket` passes the
-        masks it weights out with); computed here when None.
-
-    Returns
-    -------
-    (K,) float64
-        Re-estimated exposure times, in input order.
-    """
-    times = np.asarray(times, dtype=float)
-    order = np.argsort(times)
-    frames = [f[:, :, None] if np.ndim(f) == 2 else f for f in map(np.asarray, frames)]
-    h, w, c = frames[0].shape
-    rows = np.arange(0, h, max(1, int(np.ceil(h * w * c / _RATIO_MAX_SAMPLES))))
-    lo, hi, clip = window[0] * saturation, window[1] * saturation, clip * saturation
-    if near_clip is None:
-        near_clip = [clipped_neighbourhood(f, clip, clip_radius) for f in frames]
-    log_t = np.zeros(len(times))
-    for i in range(1, len(order)):
-        ka, kb = order[i - 1], order[i]
-        t_a, t_b = times[ka], times[kb]
-        ratio, n, rel_se = _overlap_ratio(frames[ka][rows].astype(np.float64), frames[kb][rows].astype(np.float64),
-                                          (near_clip[ka][rows] | near_clip[kb][rows])[:, :, None], t_a, t_b, lo, hi,
-                                          min_samples)
-        nominal = t_b / t_a
-        if ratio is None or rel_se > max_std_error:
-            log.info("merge: %d well-exposed samples shared by %.6g s and %.6g s (relative standard error %.3g): "
-                     "nominal ratio kept", n, t_a, t_b, rel_se)
-            ratio = nominal
-        elif abs(ratio / nominal - 1) > max_deviation:
-            warnings.warn(
-                f"merge: exposure ratio {t_b:.6g} s / {t_a:.6g} s measured as {ratio:.6g} on {n} pixel-channels, "
-                f"{100 * (ratio / nominal - 1):+.1f}% from the nominal {nominal:.6g} (beyond the "
-                f"{100 * max_deviation:.3g}% tolerance): nominal ratio kept (motion, flicker or a wrong time?)",
-                ExposureTimeWarning,
-                stacklevel=2,
-            )
-            ratio = nominal
-        log_t[i] = log_t[i - 1] + np.log(ratio)
-    est = np.empty(len(times))
-    est[order] = np.exp(log_t)
-    return est * np.exp(np.median(np.log(times / est)))
+def sample_bands(shape, max_samples: int = RATIO_MAX_SAMPLES, bands: int = 8) -> list[tuple[int, int]]:
+    """Row ranges (y0, y1): ``bands`` evenly spaced bands of rows holding at most ``max_samples`` pixel-channels."""
+    h, w, c = shape
+    total = max(1, min(h, max_samples // (w * c)))
+    if total >= h:
+        return [(0, h)]
+    n = min(bands, total)
+    per = total // n
+    starts = np.linspace(0, h - per, n).astype(int)
+    return [(int(y), int(y) + per) for y in starts]
 
 
-def align_frames(frames: Sequence[np.ndarray], times: Sequence[float], *, saturation: float = 1.0,
-                 max_bits: int | None = None) -> tuple[list[np.ndarray], np.ndarray]:
-    """Align frames by translation with OpenCV's median threshold bitmaps (Ward 2003).
+def _sample(sources, clip: float, radius: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Evenly spaced bands of rows of every frame (fractions of full scale) and their clipped neighbourhoods."""
+    frames, masks = [], []
+    for src in sources:
+        parts = [_band(src, y0, y1, radius, clip, max(radius, 0)) for y0, y1 in sample_bands(src.shape)]
+        frames.append(np.concatenate([np.asarray(r, np.float64) / src.saturation for r, _ in parts]))
+        masks.append(np.concatenate([m if m is not None else np.zeros(r.shape[:2], bool) for r, m in parts]))
+    return frames, masks
 
-    Each frame is shifted onto the frame of median exposure time; pixels
-    shifted in from outside the frame become NaN (no data for the merge).
 
-    Parameters
-    ----------
-    frames : sequence of K (H, W, C) arrays
-        Linear frames.
-    times : (K,) float
-        Exposure times (only used to pick the reference frame).
-    saturation : float
-        Frame value of full scale.
-    max_bits : int, optional
-        log2 of the largest shift searched (default: 6, i.e. up to 64 px,
-        reduced for small images so the coarsest pyramid level keeps >= 24 px).
+def _times_used(sources, nominal, clip, radius, ratio_tolerance) -> np.ndarray:
+    """Exposure times re-estimated from the frames' overlap where they differ from the nominal ratios."""
+    frames, near = _sample(sources, clip, radius)
+    est = estimate_times(frames, nominal, saturation=1.0, clip=clip, clip_radius=radius, near_clip=near)
+    ratio_err = np.abs(est / nominal / np.median(est / nominal) - 1)
+    if np.any(ratio_err > ratio_tolerance):
+        log.info("merge: exposure times re-estimated from overlap: %s -> %s", nominal.tolist(), est.tolist())
+        return est
+    return nominal
 
-    Returns
-    -------
-    aligned : list of K (H, W, C) float32
-    shifts : (K, 2) int
-        (dx, dy) applied to each frame.
-    """
-    import cv2
 
-    ref = int(np.argsort(times)[len(times) // 2])
-    if max_bits is None:
-        max_bits = int(np.clip(np.log2(min(np.shape(frames[0])[:2]) / 24), 1, 6))
-    mtb = cv2.createAlignMTB(max_bits=max_bits)
-
-    def grey8(f):
-        g = np.asarray(f, dtype=np.float32).mean(axis=2) / saturation
-        return (np.clip(g, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
-
-    ref8 = grey8(frames[ref])
-    aligned, shifts = [], []
-    for k, f in enumerate(frames):
-        f = np.asarray(f, dtype=np.float32)
-        dx, dy = (0, 0) if k == ref else (int(v) for v in mtb.calculateShift(ref8, grey8(f)))
-        out = np.full_like(f, np.nan)
-        h, w = f.shape[:2]
-        ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
-        xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
-        out[yd, xd] = f[ys, xs]
-        aligned.append(out)
-        shifts.append((dx, dy))
-    return aligned, np.asarray(shifts, dtype=int)
+def _merge_tiles(sources, used, settings: dict, tile_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Radiance, variance and flags as (C, H, W) planes, merged band by band."""
+    h, w, c = sources[0].shape
+    rad = np.empty((c, h, w), np.float32)
+    var = np.empty((c, h, w), np.float32)
+    flags = np.empty((c, h, w), np.uint8)
+    radius = settings["clip_radius"]
+    same = len({(np.dtype(s.dtype), s.saturation) for s in sources}) == 1
+    inv_sat = 1.0 / sources[0].saturation if same else 1.0
+    for y0 in range(0, h, tile_rows):
+        y1 = min(h, y0 + tile_rows)
+        bands = [_band(s, y0, y1, radius, settings["clip"], radius) for s in sources]
+        rows = [r if same else np.asarray(r, np.float32) / np.float32(s.saturation) for (r, _), s in zip(bands, sources)]
+        flat = tuple(np.ascontiguousarray(r).reshape(-1, c) for r in rows)
+        near = tuple(m.reshape(-1) for _, m in bands) if radius > 0 else (np.empty(0, bool),)
+        _merge_kernel(flat, near, used, inv_sat, settings["lo"], settings["clip"], settings["optimal"],
+                      settings["inv_well"], settings["read_var"], settings["iterations"],
+                      rad[:, y0:y1].reshape(c, -1).T, var[:, y0:y1].reshape(c, -1).T,
+                      flags[:, y0:y1].reshape(c, -1).T)
+    return rad, var, flags
 
 
 def merge_bracket(
-    frames: Sequence[np.ndarray],
+    frames: Sequence,
     times: Sequence[float],
     *,
     weighting: str = "optimal",
@@ -547,107 +417,76 @@ def merge_bracket(
     align: bool = False,
     iterations: int = 2,
     names: Sequence[str] | None = None,
+    tile_rows: int = 256,
 ) -> MergeResult:
-    """Merge a bracket of linear frames into radiance and variance.
+    """Merge a bracket of linear frames into radiance and variance (model: the module docstring).
 
     Parameters
     ----------
-    frames : sequence of K (H, W, C) or (H, W) arrays
-        Linear frames of one scene (float or integer), all the same shape.
+    frames : sequence of K (H, W, C) or (H, W) arrays or frame sources
+        Linear frames of one scene (float or integer arrays, or
+        :mod:`brdfrig.hdr.frames` sources read by rows), all the same shape.
     times : (K,) float
         Nominal exposure times in seconds (any order).
     weighting : {"optimal", "debevec"}
         Noise-optimal ``t^2 / variance`` weights (default) or Debevec's hat.
     saturation : float, optional
-        Frame value of full scale: 1.0 for float frames, the dtype's maximum
-        for integer frames by default.
+        Frame value of full scale of array frames: 1.0 for float arrays, the
+        dtype's maximum for integer arrays by default (sources carry their own).
     clip_threshold, black_threshold : float
         Samples ``>= clip_threshold`` or ``<= black_threshold`` (fractions of
-        ``saturation``) get zero weight, per channel.
+        full scale) get zero weight, per channel.
     clip_radius : int
-        Every channel of a pixel within ``clip_radius`` pixels (a
-        ``(2 clip_radius + 1)^2`` square) of a pixel ``>= clip_threshold`` in
-        any channel gets zero weight in that frame, as if saturated
-        (:func:`clipped_neighbourhood`; also the exclusion of
-        :func:`estimate_times`).  1 (default) covers bilinear demosaicing
-        (:func:`brdfrig.hdr.raw.decode_raw`): small lights clipped at 16x full scale
-        next to unclipped pixels (a 32x40 DNG bracket) merged up to 84% low at
-        their demosaiced rim with 0, within 0.8% (14-bit quantisation) with 1.
-        0 suits frames that were not demosaiced (every pixel measured
-        independently); in-camera demosaicing (TIFF/JPEG) may need 2.
+        Every channel of a pixel within ``clip_radius`` pixels of a pixel
+        ``>= clip_threshold`` in any channel of a frame gets zero weight in it
+        (:func:`clipped_neighbourhood`): 1 covers bilinear demosaicing
+        (small lights clipped at 16x full scale merged up to 84% low at their
+        demosaiced rim with 0, within 0.8% with 1), 0 frames never demosaiced.
     full_well, read_noise : float
         Noise model in electrons: full-scale signal and read-noise sigma.
     reestimate_times : bool
-        Re-estimate exposure ratios from well-exposed overlap
-        (:func:`estimate_times`) and use them when they differ from the
-        nominal ratios by more than ``ratio_tolerance`` (relative).
+        Use exposure ratios re-estimated from well-exposed overlap
+        (:func:`estimate_times`) where they differ from the nominal ones by
+        more than ``ratio_tolerance`` (relative).
     align : bool
         Translate frames onto the median-exposure frame first (:func:`align_frames`).
     iterations : int
         Re-weighting iterations of the optimal merge.
     names : sequence of str, optional
         Frame names (file names) used in error messages.
+    tile_rows : int
+        Rows merged at a time.
 
     Returns
     -------
     MergeResult
+        Arrays (H, W, C), views of channel-major planes.
     """
-    arrays, nominal, names = _validate(frames, times, names)
-    if weighting not in ("optimal", "debevec"):
-        raise InputError(f"merge: weighting must be 'optimal' or 'debevec', got {weighting!r}")
-    if not 0 <= black_threshold < clip_threshold <= 1:
-        raise InputError(f"merge: need 0 <= black_threshold < clip_threshold <= 1, got "
-                         f"{black_threshold}, {clip_threshold}")
-    if saturation is None:
-        dt = arrays[0].dtype
-        saturation = float(np.iinfo(dt).max) if np.issubdtype(dt, np.integer) else 1.0
-    if not saturation > 0:
-        raise InputError(f"merge: saturation must be positive, got {saturation}")
-    if isinstance(clip_radius, bool) or not isinstance(clip_radius, (int, np.integer)) or clip_radius < 0:
-        raise InputError(f"merge: clip_radius must be a non-negative integer (pixels), got {clip_radius!r}")
-
+    sources, nominal, names = _validate(frames, times, names, saturation)
+    _check_settings(weighting, black_threshold, clip_threshold, clip_radius, sources)
     shifts = None
-    if align and len(arrays) > 1:
-        arrays, shifts = align_frames(arrays, nominal, saturation=saturation)
-    used = nominal.copy()
-    reestimate = reestimate_times and len(arrays) > 1
-    near = [clipped_neighbourhood(a, clip_threshold * saturation, clip_radius) for a in arrays] \
-        if clip_radius > 0 or reestimate else None
-    if reestimate:
-        est = estimate_times(arrays, nominal, saturation=saturation, clip=clip_threshold, clip_radius=clip_radius,
-                             near_clip=near)
-        ratio_err = np.abs(est / nominal / np.median(est / nominal) - 1)
-        if np.any(ratio_err > ratio_tolerance):
-            log.info("merge: exposure times re-estimated from overlap: %s -> %s", nominal.tolist(), est.tolist())
-            used = est
+    if align and len(sources) > 1:
+        arrays, shifts = align_frames([read_whole(s) for s in sources], nominal, saturation=1.0)
+        sources = [ArrayFrame(a, s.name, 1.0) for a, s in zip(arrays, sources)]
+    used = _times_used(sources, nominal, clip_threshold, clip_radius, ratio_tolerance) \
+        if reestimate_times and len(sources) > 1 else nominal.copy()
+    settings = {"clip_radius": int(clip_radius), "clip": clip_threshold, "lo": black_threshold,
+                "optimal": weighting == "optimal", "inv_well": 1.0 / full_well,
+                "read_var": (read_noise / full_well) ** 2, "iterations": int(iterations)}
+    rad, var, flags = _merge_tiles(sources, used, settings, max(1, int(tile_rows)))
+    _warn_saturated(flags, clip_radius, used)
+    return MergeResult(radiance=rad.transpose(1, 2, 0), variance=var.transpose(1, 2, 0),
+                       flags=flags.transpose(1, 2, 0), times=used, nominal_times=nominal, shifts=shifts,
+                       weighting=weighting)
 
-    h, w, c = arrays[0].shape
-    dtypes = {a.dtype for a in arrays}
-    if len(dtypes) > 1:
-        arrays = [a.astype(np.float32) for a in arrays]
-    flat = tuple(np.ascontiguousarray(a).reshape(h * w, c) for a in arrays)
-    rad = np.empty((h * w, c), np.float32)
-    var = np.empty((h * w, c), np.float32)
-    flags = np.empty((h * w, c), np.uint8)
-    near_flat = tuple(m.reshape(h * w) for m in near) if clip_radius > 0 else (np.empty(0, bool),)
-    _merge_kernel(flat, near_flat, used, 1.0 / saturation, black_threshold, clip_threshold, weighting == "optimal",
-                  1.0 / full_well, (read_noise / full_well) ** 2, int(iterations), rad, var, flags)
-    result = MergeResult(
-        radiance=rad.reshape(h, w, c),
-        variance=var.reshape(h, w, c),
-        flags=flags.reshape(h, w, c),
-        times=used,
-        nominal_times=nominal,
-        shifts=shifts,
-        weighting=weighting,
-    )
-    nsat = int(np.count_nonzero(result.flags == FLAG_SATURATED))
+
+def _warn_saturated(flags: np.ndarray, clip_radius: int, used: np.ndarray) -> None:
+    nsat = int(np.count_nonzero(flags == FLAG_SATURATED))
     if nsat:
         warnings.warn(
-            f"merge: {nsat} pixel-channels ({100 * nsat / result.flags.size:.3g}%) are saturated in every "
+            f"merge: {nsat} pixel-channels ({100 * nsat / flags.size:.3g}%) are saturated in every "
             f"frame (or within clip_radius={clip_radius} px of a saturated pixel), shortest exposure "
             f"{used.min():.6g} s: their radiance is only a lower bound (add a shorter exposure)",
             SaturationWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
-    return result
