@@ -398,4 +398,7 @@ def test_a_uniform_sky_fits_a_diffuse_model_with_its_bands_left_out():
     scene = Scene(env, px.normals, truth.predict(env, px.normals), px.weights)
     result = fit_brdf([scene], model="diffuse", lmax=2, progress=False)
     assert any("bands [1, 2] have no lighting energy" in w for w in result.report.warnings)
-    np.testing.assert_allclose(result.brdf.predict(env, px.normals), scene.radiance, rtol=1e-6)
+    # closed form: a Lambertian under a uniform sky L reflects albedo * L everywhere (the quadrature
+    # rendering of the data is 0.2% high near the limb; the fit sees through it to 4e-4)
+    want = np.broadcast_to(2.0 * np.array([0.5, 0.4, 0.3]), scene.radiance.shape)
+    np.testing.assert_allclose(result.brdf.predict(env, px.normals), want, rtol=1e-3)
