@@ -45,8 +45,8 @@ second differences continue the table linearly and the constraints keep it non-n
 non-increasing in ``theta_h``); values are finite everywhere.
 
 Measured (one scene, 96 px sphere, fit under grace 128 x 64, relit under ennis 128 x 64, noise-free,
-relative RMS; defaults; ``fit_microfacet`` beside it): rgl/acrylic_felt_green 14.7% (microfacet 40.7%),
-rgl/paper_blue 14.9% (15.6%), rgl/irid_flake_paint1 22.5% (32.5%), rgl/satin_blue 17.2% (6.4%).  One
+relative RMS; defaults; ``fit_microfacet`` beside it): rgl/acrylic_felt_green 12.4% (microfacet 40.7%),
+rgl/paper_blue 11.3% (15.6%), rgl/irid_flake_paint1 22.5% (32.5%), rgl/satin_blue 14.9% (6.4%).  One
 image leaves the table ill-determined: with the smoothness at the check pixels' choice (``lam_rel`` ~ 1e-6)
 the felt reproduced its own image to 0.9% and relit at 65-135%.
 """
@@ -81,11 +81,13 @@ BLOCK_PIXELS = 512
 """Pixels per streamed design block (memory: ``BLOCK_PIXELS x C x nh nd`` doubles)."""
 LAMBDA_GRID = tuple(10.0 ** np.arange(-7.0, 0.5, 0.5))
 """Candidate relative smoothness weights ``lam_rel`` (``lam = lam_rel ||R||_F^2 / ||D||_F^2``)."""
-LAMBDA_MIN = 0.1
+LAMBDA_MIN = 0.3
 """Smallest ``lam_rel`` the check pixels may choose.  Check pixels of the fit's own lighting always prefer
 less smoothing (they cannot see the directions that lighting leaves weakly excited); relighting wants much
-more.  Measured on rgl/acrylic_felt_green (96 px, grace -> ennis, 1500 px, 24 x 8 nodes): relighting error
-65% / 52% / 34% / 18% / 14% at ``lam_rel`` = 1e-4 / 1e-3 / 1e-2 / 0.1 / 1, own-image residual 0.9% -> 1.8%."""
+more.  Measured on rgl/acrylic_felt_green (96 px, grace -> ennis, 1500 px, 24 x 8 nodes, ``D_WEIGHT`` 1):
+relighting error 65% / 52% / 34% / 18% / 14% at ``lam_rel`` = 1e-4 / 1e-3 / 1e-2 / 0.1 / 1, own-image
+residual 0.9% -> 1.8%; with ``D_WEIGHT`` 10 at 0.1 / 0.3 / 1: felt 14.7% / 12.4% / 17.8%, rgl/paper_blue
+14.9% / 11.3% / 11.5%, rgl/irid_flake_paint1 22.5% / 22.5% / 25.8%."""
 MONOTONE_MAX_LOSS = 0.02
 """The monotone table is kept unless dropping monotonicity lowers the check pixels' relative RMS error by more."""
 DETERMINED_MIN_OBSERVED = 0.25
