@@ -13,7 +13,7 @@ What it does, in order:
 4. relights each fitted sample under a lighting the fit never saw and compares
    with the simulator's true BRDF rendered by brute-force quadrature; targets: <= 2% relative RMS for
    diffuse samples, <= 8% for glossy ones.  Exit status 1 if a target is missed.  The table (and the
-   capture's file count and times) is added to the results' ``stats.json`` as ``demo``.
+   capture's file count and times) is added to the results' `stats.json` as `demo`.
 
 `--quick` shrinks the session (fewer scenes, smaller frame) for smoke tests;
 its numbers are not held to the targets.

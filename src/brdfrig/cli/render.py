@@ -1,12 +1,12 @@
-"""``brdfrig render``: render a sphere with a fitted or measured BRDF under a lat-long lighting map (relighting).
+"""`brdfrig render`: render a sphere with a fitted or measured BRDF under a lat-long lighting map (relighting).
 
-The BRDF is a file written by ``brdfrig fit``, or a measured material: a neural
-fit (``NAME.h5`` with ``NAME.json`` beside it) or a MERL table (``.binary``).
-Measured materials are rendered by the ground-truth renderer (MERL-grid table,
-sharp-lobe quadrature over the map's cells, ``brdfrig.fit.groundtruth.render_tabulated``).
+The BRDF is a file written by `brdfrig fit`, or a measured material: a neural
+fit (`NAME.h5` with `NAME.json` beside it) or a MERL table (`.binary`).
+Measured materials are rendered by brute-force quadrature of their MERL-grid table,
+with the map's cells near each pixel's mirror direction subdivided (sharp lobes).
 The sphere is centred in an N x N image with radius N/2 pixels, seen
-orthographically from ``v = (0, 0, 1)`` (MATH.md); pixels outside it are 0.
-Written as a linear float32 EXR (``brdfrig.hdr.exr.write_exr``, atomic).
+orthographically from `v = (0, 0, 1)` (MATH.md); pixels outside it are 0.
+Written as a linear float32 EXR, atomically.
 """
 
 from __future__ import annotations

@@ -1,17 +1,16 @@
-"""``brdfrig rig check``: find and exercise the configured devices and report what works.
+"""`brdfrig rig check`: find and exercise the configured devices and report what works.
 
-The turntable check connects (GRBL 1.1 greeting, ``$$`` settings), homes,
+The turntable check connects (GRBL 1.1 greeting, `$$` settings), homes,
 rotates to +10 degrees and back with read-back verification, and stops; it
-prints the firmware version and every ``$$`` setting the board reports.  The
-camera check sets an exposure, takes one picture into ``--out`` (default: a
+prints the firmware version and every `$$` setting the board reports.  The
+camera check sets an exposure, takes one picture into `--out` (default: a
 temporary folder), reads the exposure and the camera model back from the
 file's metadata and prints the spheres it finds in the picture
-(``brdfrig.hdr.detect.detect_spheres``; the most mirror-like one is the probe,
-as ``brdfrig locate`` decides), with their circles in pixels.
-Devices come from the ``[rig]`` table of a rig file or a session file
-(``--config``), or from flags; ``--simulate`` runs the GRBL simulator on a
+(the most mirror-like one is the probe, as `brdfrig locate` decides), with their circles in pixels.
+Devices come from the `[rig]` table of a rig file or a session file
+(`--config`), or from flags; `--simulate` runs the GRBL simulator on a
 pseudo-terminal and the simulated camera, through the same drivers.  With no
-device configured, or an ``--out`` that is not a writable folder, it stops
+device configured, or an `--out` that is not a writable folder, it stops
 before touching anything (exit 2).
 """
 
