@@ -151,3 +151,52 @@ def test_demosaic_radius_from_noise_correlation(dng_bracket, tmp_path):
     tiffs = write_tiff_bracket(tmp_path, smooth_scene(seed=4))
     ind = demosaic_radius([read_frame(p)[0] for p in tiffs], TIFF_TIMES)
     assert ind.radius == 0 and np.all(np.abs(ind.correlation) < 0.03)
+
+
+def test_streamed_merge_equals_the_in_memory_merge_and_holds_no_whole_frame(tmp_path):
+    import tracemalloc
+
+    from brdfrig.hdr.frames import ImageFileFrame
+    from brdfrig.hdr.merge import merge_bracket
+    from brdfrig.hdr.raw import read_frame
+
+    truth = smooth_scene(300, 400, seed=5)
+    paths = write_tiff_bracket(tmp_path, truth)
+    kwargs = dict(clip_radius=1, full_well=FW_TIFF, read_noise=RN_TIFF)
+    whole = merge_bracket([read_frame(p)[0] for p in paths], TIFF_TIMES, tile_rows=10**6, **kwargs)
+    for rows in (7, 256):
+        streamed = merge_bracket([ImageFileFrame(p) for p in paths], TIFF_TIMES, tile_rows=rows, **kwargs)
+        # Same samples (uint16 / 65535 in the kernel vs float32 from the reader): equal to float32 rounding.
+        np.testing.assert_allclose(streamed.radiance, whole.radiance, rtol=2e-6)
+        assert np.array_equal(streamed.flags, whole.flags)
+        np.testing.assert_allclose(streamed.times, whole.times, rtol=1e-9)
+    sources = [ImageFileFrame(p) for p in paths]
+    samples = truth.size
+    tracemalloc.start()
+    merge_bracket(sources, TIFF_TIMES, tile_rows=32, reestimate_times=False, **kwargs)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    # Outputs: 9 bytes per sample (radiance, variance float32, flags uint8), the saturation count's mask 1, bands of
+    # 32 rows of 7 frames ~2 here (measured 12.8 in all); the 7 frames held whole would add 14 (uint16) or 28 (float32).
+    assert peak < 18 * samples, peak / samples
+
+
+def test_align_leaves_an_unshifted_bracket_alone(tmp_path):
+    import cv2
+
+    from brdfrig.hdr.bracket import MergePolicy, merge_files as merge_bracket_files
+    from brdfrig.hdr.raw import read_frame
+
+    paths = write_tiff_bracket(tmp_path, smooth_scene(300, 400))
+    frames = [read_frame(p)[0] for p in paths]
+    grey8 = [(np.clip(f.mean(axis=2), 0, 1) ** (1 / 2.2) * 255).astype(np.uint8) for f in frames]
+    mtb = cv2.createAlignMTB(max_bits=3)  # what align_frames uses for 300 rows
+    bitmap_shifts = [tuple(mtb.calculateShift(grey8[3], g)) for g in grey8]
+    assert any(s != (0, 0) for s in bitmap_shifts)  # the bitmaps alone report shifts of this unshifted bracket
+    policy = MergePolicy(full_well=FW_TIFF, read_noise=RN_TIFF)
+    aligned = merge_bracket_files(paths, MergePolicy(full_well=FW_TIFF, read_noise=RN_TIFF, align=True),
+                                  times=TIFF_TIMES)
+    # A shift that does not bring the frames closer is dropped: no shift, no border without data, the same radiance.
+    assert aligned.merge.shifts.tolist() == [[0, 0]] * len(paths) and aligned.no_data == 0
+    plain = merge_bracket_files(paths, policy, times=TIFF_TIMES).merge.radiance
+    np.testing.assert_allclose(aligned.merge.radiance, plain, rtol=2e-6)  # aligned frames are read whole (float32)
