@@ -13,6 +13,11 @@ Run as ``python -m benchmarks.bench_merge [--quick] [--out DIR]``.
    default, for demosaiced frames), to show the cost of weighting out the
    neighbourhoods of clipped pixels.
 
+3. Memory (``--memory``): a 7 x 24 MP (6000 x 4000) 16-bit TIFF bracket
+   written to a temporary directory (deleted afterwards), merged by
+   ``brdfrig merge`` with its defaults in a child process; peak resident set
+   size (``getrusage`` of the child) and wall time of ``repeats`` runs.
+
 The synthetic frames are not demosaiced (every pixel is measured
 independently), so brdfrig merges them with ``clip_radius=0``.
 """
@@ -136,13 +141,47 @@ def throughput(h: int, w: int, repeats: int) -> dict:
     return {"seconds": times, "ratio": ratio}
 
 
+def memory(h: int, w: int, repeats: int) -> dict:
+    """Peak RSS (GB) and wall time (s) of ``brdfrig merge`` (defaults) on an (h, w) 7-frame 16-bit TIFF bracket."""
+    import resource
+    import subprocess
+    import tempfile
+
+    import tifffile
+
+    with tempfile.TemporaryDirectory(prefix="bench-merge-") as tmp:
+        tile = synthetic_bracket(h // 8, w // 8, seed=2)[1]
+        paths = []
+        for k, f in enumerate(tile):
+            paths.append(Path(tmp) / f"f{k}.tif")
+            tifffile.imwrite(paths[-1], np.ascontiguousarray(np.tile(f, (8, 8, 1))))
+        del tile
+        cmd = [sys.executable, "-m", "brdfrig.cli.main", "merge", *map(str, paths), "--times",
+               ",".join(map(str, TIMES)), "--full-well", str(FULL_WELL), "--read-noise", str(READ_NOISE),
+               "-o", str(Path(tmp) / "out.exr")]
+        walls, peaks = [], []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            walls.append(time.perf_counter() - t0)
+            peaks.append(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6)  # kB -> GB, max so far
+    print(f"\nMemory: brdfrig merge of 7 x {w}x{h} 16-bit TIFFs: peak RSS {max(peaks):.2f} GB, "
+          f"median wall time {np.median(walls):.1f} s over {repeats} runs")
+    return {"peak_gb": max(peaks), "seconds": float(np.median(walls))}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_merge", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="small images, 1 timed run (smoke test)")
     parser.add_argument("--out", type=Path, default=Path("bench-out"), help="directory for bench_merge.png")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per method (default: 3)")
+    parser.add_argument("--memory", action="store_true",
+                        help="only the memory benchmark: 7 x 24 MP 16-bit TIFFs through brdfrig merge")
     args = parser.parse_args(argv)
+    if args.memory:
+        memory(4000, 6000, args.repeats)
+        return 0
     if args.quick:
         accuracy(120, 160, args.out)
         throughput(300, 400, 1)
