@@ -314,7 +314,7 @@ def test_readline_deadline_holds_while_garbage_trickles_in():
             t0 = time.monotonic()
             with pytest.raises(DeviceTimeout):
                 link.readline(time.monotonic() + 0.2)
-            assert time.monotonic() - t0 < 0.5
+            assert time.monotonic() - t0 < 5.0  # the trickle never ends: without the deadline this never returns
     finally:
         stop.set()
         thread.join()
