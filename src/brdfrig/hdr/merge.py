@@ -337,12 +337,12 @@ def clipped_neighbourhood(frame: np.ndarray, clip: float, radius: int) -> np.nda
     return hit.view(bool)
 
 
-def _band(src, y0: int, y1: int, halo: int, clip: float, radius: int):
-    """Rows y0:y1 of a source (own dtype) and, if ``radius``, their clipped neighbourhood (read with a halo)."""
+def _band(src, y0: int, y1: int, clip: float, radius: int, mask: bool):
+    """Rows y0:y1 of a source (own dtype) and, if ``mask``, their clipped neighbourhood (read with a halo)."""
     h = src.shape[0]
-    a0, a1 = max(0, y0 - halo), min(h, y1 + halo)
+    a0, a1 = max(0, y0 - radius), min(h, y1 + radius)
     rows = src.rows(a0, a1)
-    near = clipped_neighbourhood(rows, clip * src.saturation, radius)[y0 - a0:y1 - a0] if radius > 0 else None
+    near = clipped_neighbourhood(rows, clip * src.saturation, radius)[y0 - a0:y1 - a0] if mask else None
     return rows[y0 - a0:y1 - a0], near
 
 
@@ -362,9 +362,9 @@ def _sample(sources, clip: float, radius: int) -> tuple[list[np.ndarray], list[n
     """Evenly spaced bands of rows of every frame (fractions of full scale) and their clipped neighbourhoods."""
     frames, masks = [], []
     for src in sources:
-        parts = [_band(src, y0, y1, radius, clip, max(radius, 0)) for y0, y1 in sample_bands(src.shape)]
+        parts = [_band(src, y0, y1, clip, radius, True) for y0, y1 in sample_bands(src.shape)]
         frames.append(np.concatenate([np.asarray(r, np.float64) / src.saturation for r, _ in parts]))
-        masks.append(np.concatenate([m if m is not None else np.zeros(r.shape[:2], bool) for r, m in parts]))
+        masks.append(np.concatenate([m for _, m in parts]))
     return frames, masks
 
 
@@ -390,7 +390,7 @@ def _merge_tiles(sources, used, settings: dict, tile_rows: int) -> tuple[np.ndar
     inv_sat = 1.0 / sources[0].saturation if same else 1.0
     for y0 in range(0, h, tile_rows):
         y1 = min(h, y0 + tile_rows)
-        bands = [_band(s, y0, y1, radius, settings["clip"], radius) for s in sources]
+        bands = [_band(s, y0, y1, settings["clip"], radius, radius > 0) for s in sources]
         rows = [r if same else np.asarray(r, np.float32) / np.float32(s.saturation) for (r, _), s in zip(bands, sources)]
         flat = tuple(np.ascontiguousarray(r).reshape(-1, c) for r in rows)
         near = tuple(m.reshape(-1) for _, m in bands) if radius > 0 else (np.empty(0, bool),)
