@@ -1,16 +1,16 @@
-"""``brdfrig fit``: fit a BRDF to HDR images of a sample sphere under measured lighting.
+"""`brdfrig fit`: fit a BRDF to HDR images of a sample sphere under measured lighting.
 
-Each ``--scene ENV IMAGE`` pairs a lat-long environment map (MATH.md
+Each `--scene ENV IMAGE` pairs a lat-long environment map (MATH.md
 convention, EXR or Radiance .hdr, any resolution) with an HDR image of the
-sample sphere taken under it; ``--probe-scene PROBE IMAGE`` takes the lighting
-from a mirror-ball image instead (circle auto-detected, unwrapped by
-``brdfrig.hdr.probe``; ``--probe-circle`` overrides detection).  The sample sphere's circle is auto-detected in every IMAGE
-unless ``--circle cx,cy,r`` is given.  Pixels within ``brdfrig.hdr.sphere``'s default
-limb margin get weight 0, and the fitter ignores normals beyond 80 degrees from
-the view (``brdfrig.fit.fitter``).  Prints the identifiability report and the fit
-statistics; writes the versioned BRDF file (``brdfrig.fit.brdffile``) atomically,
-with the colour space the input EXRs declare (``brdfrig merge --colour-space``;
-``camera`` when none does; inputs declaring different spaces are refused).
+sample sphere taken under it; `--probe-scene PROBE IMAGE` takes the lighting
+from a mirror-ball image instead (circle auto-detected, `--probe-circle`
+overrides detection).  The sample sphere's circle is auto-detected in every IMAGE
+unless `--circle cx,cy,r` is given.  Pixels within 2 px of the
+limb get weight 0, and the fitter ignores normals beyond 80 degrees from
+the view.  Prints the identifiability report and the fit
+statistics; writes the versioned BRDF file atomically,
+with the colour space the input EXRs declare (`brdfrig merge --colour-space`;
+`camera` when none does; inputs declaring different spaces are refused).
 """
 
 from __future__ import annotations

@@ -1,29 +1,29 @@
-"""``brdfrig merge``: merge an exposure bracket into one linear HDR EXR (radiance + variance).
+"""`brdfrig merge`: merge an exposure bracket into one linear HDR EXR (radiance + variance).
 
 Frames are camera raw files (DNG, CR2, NEF, ... decoded linearly by LibRaw)
 or TIFF/JPEG.  Exposure times come from the files' metadata (EXIF) unless
-``--times`` gives them; when ISO or aperture also vary, the effective exposure
-``t * ISO / N^2`` (relative to the first frame) is used.  Integer TIFF/JPEG
-frames may be non-linear: with ``--response auto`` a response curve is recovered
+`--times` gives them; when ISO or aperture also vary, the effective exposure
+`t * ISO / N^2` (relative to the first frame) is used.  Integer TIFF/JPEG
+frames may be non-linear: with `--response auto` a response curve is recovered
 from the bracket itself (Debevec & Malik) and tested: a curve that is a
 straight line within its uncertainty means linear frames, merged as they are.
 The response and the clip radius chosen, and why, are printed and stored.
 
 The output EXR holds the radiance as R,G,B (frame units per second), its
-variance as ``variance.R/G/B``, the per-pixel merge flags as ``flags``
-(0 ok, 1 black in every frame, 2 saturated, or within ``--clip-radius`` of a
-clipped pixel, in every frame, or with no data after ``--align``: radiance and
-variance 0 there) and the exposure provenance as ``brdfrig:`` attributes (source
-files by absolute path).  Standard attributes: ``expTime`` = 1 s (the radiance
+variance as `variance.R/G/B`, the per-pixel merge flags as `flags`
+(0 ok, 1 black in every frame, 2 saturated, or within `--clip-radius` of a
+clipped pixel, in every frame, or with no data after `--align`: radiance and
+variance 0 there) and the exposure provenance as `brdfrig:` attributes (source
+files by absolute path).  Standard attributes: `expTime` = 1 s (the radiance
 is full scale per second, i.e. the equivalent of a 1 s exposure) and, where the
-first frame records them, its ``aperture`` and ``isoSpeed`` (the reference of
+first frame records them, its `aperture` and `isoSpeed` (the reference of
 the effective exposure times).
 
-``--colour-space rec709`` or ``acescg`` converts camera RGB by the first raw
-file's colour matrix and as-shot neutral (``brdfrig.hdr.colour``; white
+`--colour-space rec709` or `acescg` converts camera RGB by the first raw
+file's colour matrix and as-shot neutral (white
 balanced: a grey card reads R = G = B); the space is stored as
-``brdfrig:colour_space`` with the matrix, and the standard ``chromaticities``
-are set.  The default ``camera`` keeps camera RGB (no ``chromaticities``).
+`brdfrig:colour_space` with the matrix, and the standard `chromaticities`
+are set.  The default `camera` keeps camera RGB (no `chromaticities`).
 """
 
 from __future__ import annotations
