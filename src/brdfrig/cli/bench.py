@@ -1,23 +1,22 @@
-"""``brdfrig bench``: time-vs-error benchmark of the BRDF models and solvers (engine: :mod:`brdfrig.evaluate.bench`).
+"""brdfrig bench: time against error for the BRDF models and solvers, on analytic or measured materials.
 
-Lighting: the real lat-long probes of ``--probes`` (default ``../shared/data/probes``
-beside the source tree) when at least two are present (fit under the first,
-relight under the second), otherwise the simulated bench's procedural room
-(``brdfrig.sim.bench``) and its held-out lighting.  The output says which.
+Without --measured: every model, solver and band limit on analytic BRDFs, fitted
+under one lighting and relit under another: the real lat-long probes of --probes
+(default ../shared/data/probes beside the source tree) when at least two are
+present, otherwise the simulated bench's procedural room and its held-out
+lighting (the output says which). Fast cases report medians of 3 runs; slow ones
+repeat only within the time budget (the n column). A Pareto PNG and JSON of every
+number go into --out.
 
-Ground-truth renders are cached in ``OUT/gt-cache`` (:class:`CachedGroundTruth`),
-keyed by every input and the renderer's source, so a second run skips them and
-a changed input or renderer never reuses a stale one.  Map resolution
-(:data:`MAP_ROWS`): 64 rows (128x64) for the full run.  The ground truth treats
-each map pixel as a point source, exactly the lighting the fitter's SH
-projection sees; its quadrature error against the piecewise-constant map
-(relative RMS over 600 random pixels of the 64 px sphere, against a render with
-4 x 4 sub-samples per map pixel) measured 1.6e-4 under ennis.hdr (fit) and
-4.8e-4 under grace.hdr (relighting) at 64 rows, 6.4e-4 and 1.9e-3 at 32 rows
-(~ 1/rows^2).  The SH models' relighting errors in the full table are >= 6.7e-3,
-so 64 rows keeps that error >10x below every SH row; 32 would not.  A render
-of the 64 px sphere under a 64-row map takes ~1 s (14 renders: 12 s of a 430 s
-run; 0 s when cached).
+With --measured: every material of ../shared/data/measured rendered by brute-force
+quadrature under one real probe, fitted by every model and auto, relit under two
+others; one and twelve turned scenes, noise-free and 1% noise (choose with
+--scenes and --noise); per-material table, summary (median, 90th percentile,
+worst), fit times, PNGs of the errors and of the worst five, JSON.
+
+Ground-truth renders are cached in OUT/gt-cache, keyed by every input and the
+renderer's source, so a second run skips them and a changed input or renderer
+never reuses a stale one. Map resolution: 128 x 64 for the full run.
 """
 
 from __future__ import annotations
