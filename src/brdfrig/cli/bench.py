@@ -54,7 +54,7 @@ def register(subparsers) -> None:
     p.add_argument("--probes", type=Path, default=DEFAULT_PROBES, help="directory of lat-long .hdr/.exr probes (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--measured", action="store_true",
-                   help="the measured-materials benchmark instead (brdfrig.evaluate.measured: fit under one probe, "
+                   help="the measured-materials benchmark instead (fit under one probe, "
                         "relight under others, every model; table, summary, errors.png, worst.png, measured.json)")
     add_measured_arguments(p)
     p.set_defaults(func=run)
