@@ -28,12 +28,14 @@ from brdfrig.session.library import Library
 pytest.importorskip("dask.distributed")
 
 N_SESSIONS = 4
+N_KILLED = 20
+"""Sessions of the worker-kill test (the issue's 20); the other tests use the first N_SESSIONS."""
 PRESET = ["--model", "diffuse", "--lmax", "3"]
 
 
 @pytest.fixture(scope="module")
 def stored(tmp_path_factory):
-    """A directory of N_SESSIONS small simulated sessions (two seeds, copied), none fitted yet."""
+    """A directory of N_KILLED small simulated sessions (two seeds, copied), none fitted yet."""
     from brdfrig.devices import open_rig
     from brdfrig.session.runner import run_session
 
@@ -48,8 +50,8 @@ def stored(tmp_path_factory):
         out = root / f"s{seed}"
         run_session(session_config_from_dict(doc, "test"), out, rig_factory=open_rig, prompt=None, progress=False)
         made.append(out)
-    for k in range(N_SESSIONS - len(made)):
-        shutil.copytree(made[k % len(made)], root / f"copy{k}")
+    for k in range(N_KILLED - len(made)):
+        shutil.copytree(made[k % len(made)], root / f"t{k:02d}")  # after s1, s2 in name order
     return root
 
 
@@ -58,9 +60,11 @@ def _brdfrig(*args, env=None, timeout=300):
                           timeout=timeout, env=env)
 
 
-def _fresh(stored, tmp_path) -> Path:
+def _fresh(stored, tmp_path, count: int = N_SESSIONS) -> Path:
+    """A copy of the first ``count`` stored sessions."""
     dst = tmp_path / "root"
-    shutil.copytree(stored, dst)
+    for session in sorted(stored.iterdir())[:count]:
+        shutil.copytree(session, dst / session.name)
     return dst
 
 
@@ -78,16 +82,16 @@ def _coefficients(path: Path) -> np.ndarray:
     return np.array(_numbers(brdf.to_dict()))
 
 
-def _check_batch(root: Path, lib_path: Path) -> None:
+def _check_batch(root: Path, lib_path: Path, count: int = N_SESSIONS) -> None:
     """Each session: exactly one committed fit, no staging left, one catalogue row per sample."""
     sessions = sorted(p.parent for p in root.rglob("session.json"))
-    assert len(sessions) == N_SESSIONS
+    assert len(sessions) == count
     for s in sessions:
         assert [p.name for p in (s / "results").iterdir()] == ["fit-001"], s
     with Library(lib_path) as lib:
         fits = lib.fits()
         assert lib.integrity_check() == "ok"
-    assert len(fits) == 2 * N_SESSIONS  # two samples each, none twice
+    assert len(fits) == 2 * count  # two samples each, none twice
     assert len({(f.results_dir, f.sample) for f in fits}) == len(fits)
 
 
@@ -118,7 +122,7 @@ def _workers_of(pid: int) -> list[int]:
 def test_a_killed_worker_costs_nothing(stored, tmp_path):
     import psutil
 
-    root = _fresh(stored, tmp_path)
+    root = _fresh(stored, tmp_path, N_KILLED)
     lib = tmp_path / "lib.sqlite"
     p = subprocess.Popen([sys.executable, "-m", "brdfrig", "refit", "--batch", str(root), "--workers", "2",
                           "--library", str(lib), "--no-progress", *PRESET],
@@ -136,7 +140,7 @@ def test_a_killed_worker_costs_nothing(stored, tmp_path):
     out, err = p.communicate(timeout=300)
     assert killed is not None, "no fit was seen under way"
     assert p.returncode == 0, err
-    _check_batch(root, lib)
+    _check_batch(root, lib, N_KILLED)
 
 
 def _free_port() -> int:
