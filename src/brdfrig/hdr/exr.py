@@ -29,6 +29,7 @@ missing channel, a truncated or corrupt file or (unless allowed) NaN/inf pixels.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from importlib import metadata
@@ -345,6 +346,27 @@ def read_image(path: str | os.PathLike, *, allow_nonfinite: bool = False) -> np.
     return np.ascontiguousarray(image)
 
 
+@contextlib.contextmanager
+def oiio_input(path, what: str = "cannot be read"):
+    """An open OpenImageIO ``ImageInput`` of ``path`` for the ``with`` block (closed on exit).
+
+    Raises FileNotFoundError when the file does not exist, InputError ``"{path}: {what}: ..."``
+    when OpenImageIO cannot open it.
+    """
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"{path}: {what}: {oiio.geterror()}")
+    try:
+        yield inp
+    finally:
+        inp.close()
+
+
 def read_oiio(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
     """Read every channel of an image file through OpenImageIO, as stored (integers scaled to [0, 1]).
 
@@ -357,18 +379,11 @@ def read_oiio(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
     import OpenImageIO as oiio
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such image file")
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InputError(f"{path}: not a readable image: {oiio.geterror()}")
-    try:
+    with oiio_input(path, "not a readable image") as inp:
         spec = inp.spec()
         pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
         error = inp.geterror() if inp.has_error else ""
         is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
-    finally:
-        inp.close()
     if pixels is None or error:
         raise InputError(f"{path}: truncated or corrupt image: {error or 'no pixels read'}")
     return np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels), is_float

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from brdfrig.errors import InputError
-from brdfrig.hdr.exr import read_oiio
+from brdfrig.hdr.exr import oiio_input, read_oiio
 
 __all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw", "read_camera_model"]
 
@@ -150,23 +150,14 @@ def read_exposure(path: str | os.PathLike) -> Exposure:
     ValueError
         If the file cannot be opened or records no (positive) exposure time.
     """
-    import OpenImageIO as oiio
-
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InputError(f"{path}: cannot read metadata: {oiio.geterror()}")
-    try:
+    with oiio_input(path, "cannot read metadata") as inp:
         spec = inp.spec()
         time_s = spec.getattribute("ExposureTime")
         f_number = spec.getattribute("FNumber")
         iso = spec.getattribute("Exif:ISOSpeedRatings")
         if iso is None:
             iso = spec.getattribute("Exif:PhotographicSensitivity")
-    finally:
-        inp.close()
     if time_s is None or not np.isfinite(float(time_s)) or float(time_s) <= 0:
         raise InputError(f"{path}: no exposure time in the file's metadata (EXIF ExposureTime); "
                          "give the times explicitly (e.g. --times)")
@@ -179,15 +170,7 @@ def read_exposure(path: str | os.PathLike) -> Exposure:
 
 def read_camera_model(path: str | os.PathLike) -> str:
     """The camera's make and model from a file's metadata (EXIF / DNG ``Make``, ``Model``); "" when absent."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise InputError(f"{path}: cannot read metadata: {oiio.geterror()}")
-    try:
-        spec = inp.spec()
-        parts = [str(spec.getattribute(k) or "").strip() for k in ("Make", "Model")]
-    finally:
-        inp.close()
+    with oiio_input(path, "cannot read metadata") as inp:
+        parts = [str(inp.spec().getattribute(k) or "").strip() for k in ("Make", "Model")]
     make, model = parts
     return model if make and model.lower().startswith(make.lower()) else " ".join(p for p in parts if p)
