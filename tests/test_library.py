@@ -117,3 +117,14 @@ def test_exports_are_recorded(tmp_path):
         lib.record_export(tmp_path / "a.brdf.json", "merl", tmp_path / "a.binary", 0.004, "t")
         (row,) = lib.exports(tmp_path / "a.brdf.json")
         assert (row["format"], row["relative_rms"]) == ("merl", 0.004) and lib.exports(tmp_path / "b.json") == []
+
+
+def test_add_root_registers_each_verified_session_once(tmp_path):
+    from brdfrig.session.store import SessionStore
+
+    root = tmp_path / "results" / "bench"  # a root whose own path holds "results" is still searched
+    for name in ("a/s1", "s2"):
+        SessionStore.create(root / name, {"session": {"name": name.split("/")[-1]}})
+    with Library(tmp_path / "lib.sqlite") as lib:
+        assert lib.add_root(root) == [("s1", True), ("s2", True)]
+        assert lib.add_root(root) == [("s1", False), ("s2", False)]

@@ -229,11 +229,9 @@ class Library:
 
     def add_root(self, root) -> list[tuple[str, bool]]:
         """Register every session found below ``root`` (directories holding a ``session.json``)."""
-        root = Path(root)
-        if not root.is_dir():
-            raise StoreError(f"{root} is not a directory")
-        found = sorted(p.parent for p in root.rglob("session.json") if "results" not in p.parts)
-        return [self.add_session(p) for p in found]
+        from brdfrig.session.store import find_sessions
+
+        return [self.add_session(p) for p in find_sessions(root)]
 
     def session_roots(self) -> list[str]:
         return [r[0] for r in self._db.execute("SELECT root FROM sessions ORDER BY name, root")]

@@ -24,8 +24,9 @@ from typing import Callable
 
 from brdfrig.session.config import FitPreset, fit_preset_from_dict
 from brdfrig.session.library import Library
+from brdfrig.session.store import find_sessions
 
-__all__ = ["SessionRefit", "BatchResult", "refit_session", "refit_batch", "find_sessions", "record"]
+__all__ = ["SessionRefit", "BatchResult", "refit_session", "refit_batch", "record"]
 
 TASK_RETRIES = 2
 """How many times Dask re-runs a task whose worker died (a failing fit is not retried: it raises the same)."""
@@ -49,16 +50,6 @@ class BatchResult:
     done: list[SessionRefit] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
-
-
-def find_sessions(root) -> list[Path]:
-    """Session directories (holding ``session.json``) at or below ``root``, sorted."""
-    root = Path(root)
-    if not root.is_dir():
-        from brdfrig.errors import InputError
-
-        raise InputError(f"{root} is not a directory")
-    return sorted(p.parent for p in root.rglob("session.json") if "results" not in p.relative_to(root).parts)
 
 
 def _summary(session_dir: Path, results_dir: Path, seconds: float, reused: bool) -> SessionRefit:

@@ -56,6 +56,7 @@ __all__ = [
     "DiskFullError",
     "Verification",
     "sha256_file",
+    "find_sessions",
     "atomic_write_bytes",
 ]
 
@@ -71,6 +72,22 @@ CACHE_DIR = "cache"
 RESULTS_DIR = "results"
 LOCK_FILE = ".lock"
 _HELD_LOCKS: dict[tuple[str, int], int] = {}  # (session dir, thread) -> depth of locked() held
+
+
+def find_sessions(root: str | os.PathLike) -> list[Path]:
+    """Session directories (holding ``session.json``) at or below ``root``, sorted; results are not searched.
+
+    Raises
+    ------
+    InputError
+        If ``root`` is not a directory.
+    """
+    from brdfrig.errors import InputError
+
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root} is not a directory")
+    return sorted(p.parent for p in root.rglob(SESSION_FILE) if RESULTS_DIR not in p.relative_to(root).parts)
 
 
 def _pid_alive(staging: Path) -> bool:
