@@ -186,10 +186,10 @@ def _render_material(material: Material, normals: np.ndarray, env: Environment) 
 
 def _renderer_sources(measured: bool):
     """Modules whose source decides a ground-truth render (measured: table render; else analytic kernels)."""
-    from brdfrig.fit import analytic, groundtruth
+    from brdfrig.fit import analytic, groundtruth, rho
 
     if not measured:
-        return (groundtruth, analytic)
+        return (groundtruth, analytic, rho)
     from brdfrig.fit import measured as measured_module
     from brdfrig.fit import quadrature
 

@@ -30,11 +30,12 @@ the horizon of the normal.  ``evaluate`` uses the normal's local frame with
 ``delta_phi = phi_o - phi_i`` (``delta_phi = pi`` is the mirror configuration).
 
 An isotropic BRDF depends on the directions only through ``cos_i = n.wi``,
-``cos_o = n.wo`` and ``cos_io = wi.wo``; the numba function :func:`rho_channel`
+``cos_o = n.wo`` and ``cos_io = wi.wo``; the numba function :func:`brdfrig.fit.rho.rho_channel`
 takes exactly those, so the vectorised :meth:`AnalyticBRDF.rho`, the
 ground-truth renderer (:mod:`brdfrig.fit.groundtruth`) and the microfacet fit share one
-implementation of every formula.  A model's parameters travel to compiled code
-as an integer ``kind`` and a ``(C, NUM_PARAMS)`` float array (:meth:`AnalyticBRDF.kernel_params`).
+implementation of every formula (:mod:`brdfrig.fit.rho`, whose names this module re-exports).
+A model's parameters travel to compiled code as an integer ``kind`` and a ``(C, NUM_PARAMS)``
+float array (:meth:`AnalyticBRDF.kernel_params`).
 """
 
 from __future__ import annotations
@@ -42,240 +43,40 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from brdfrig.fit import rho as _rho
 from brdfrig.fit.brdf import register_model
+from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.rho import (  # the kernels, re-exported: callers may import them from here
+    CONDUCTOR_PARAMS,
+    F82_COS,
+    KIND_BLINN_PHONG,
+    KIND_CONDUCTOR,
+    KIND_GGX,
+    KIND_LAMBERTIAN,
+    KIND_LAYERED,
+    LAYERED_HEAD,
+    LAYERED_PARAMS,
+    NUM_PARAMS,
+    TABLE_SIZE,
+    charlie_sheen,
+    conductor_rho,
+    f82_q,
+    fresnel_dielectric,
+    ggx_lobe,
+    ggx_ndf,
+    layered_rho,
+    oren_nayar_ab,
+    oren_nayar_factor,
+    rho_channel,
+    rho_from_cosines,
+    smith_lambda,
+    table_lookup,
+)
 from brdfrig.fit.scene import Environment
 
-__all__ = [
-    "KIND_LAMBERTIAN",
-    "KIND_BLINN_PHONG",
-    "KIND_GGX",
-    "KIND_LAYERED",
-    "KIND_CONDUCTOR",
-    "NUM_PARAMS",
-    "AnalyticBRDF",
-    "Lambertian",
-    "OrenNayar",
-    "oren_nayar_ab",
-    "BlinnPhong",
-    "GGX",
-    "ggx_ndf",
-    "smith_lambda",
-    "ggx_lobe",
-    "rho_channel",
-    "rho_from_cosines",
-]
-
-KIND_LAMBERTIAN = 0
-KIND_BLINN_PHONG = 1
-KIND_GGX = 2
-NUM_PARAMS = 5
-"""Length of one channel's parameter row: diffuse only (albedo, 0, 0, 0, sigma); Blinn-Phong
-(diffuse, specular, exponent, 0, sigma); GGX (diffuse, f0, f90, alpha, sigma), with ``sigma``
-the Oren-Nayar roughness of the diffuse base (0 = Lambertian)."""
-
-
-@numba.njit(cache=True, fastmath=False)
-def ggx_ndf(cos_h: float, alpha: float) -> float:
-    """GGX normal distribution ``D`` (1/sr) at ``cos_h = n.h``; ``int D (n.h) dw_h = 1`` over the hemisphere."""
-    if cos_h <= 0.0:
-        return 0.0
-    a2 = alpha * alpha
-    t = cos_h * cos_h * (a2 - 1.0) + 1.0
-    return a2 / (math.pi * t * t)
-
-
-@numba.njit(cache=True, fastmath=False)
-def smith_lambda(cos_t: float, alpha: float) -> float:
-    """Smith ``Lambda`` of GGX for a direction at ``cos_t = n.w > 0``: ``(sqrt(1 + alpha^2 tan^2) - 1) / 2``."""
-    c2 = cos_t * cos_t
-    tan2 = max(1.0 - c2, 0.0) / c2
-    return 0.5 * (math.sqrt(1.0 + alpha * alpha * tan2) - 1.0)
-
-
-@numba.njit(cache=True, fastmath=False)
-def ggx_lobe(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> tuple[float, float]:
-    """The GGX lobe without Fresnel, ``D G2 / (4 cos_i cos_o)`` (1/sr), and ``cos_d = h.wi``.
-
-    Both directions must be above the horizon (``cos_i, cos_o > 0``); returns
-    (0, 1) when ``wi = -wo`` (no half vector).
-    """
-    # Half vector h = (wi + wo) / |wi + wo|; |wi + wo|^2 = 2 + 2 wi.wo.
-    norm2 = 2.0 + 2.0 * cos_io
-    if norm2 <= 1e-300:
-        return 0.0, 1.0
-    inv = 1.0 / math.sqrt(norm2)
-    cos_h = (cos_i + cos_o) * inv
-    cos_d = min((1.0 + cos_io) * inv, 1.0)  # h.wi = h.wo
-    g2 = 1.0 / (1.0 + smith_lambda(cos_i, alpha) + smith_lambda(cos_o, alpha))
-    return ggx_ndf(cos_h, alpha) * g2 / (4.0 * cos_i * cos_o), cos_d
-
-
-@numba.njit(cache=True, fastmath=False)
-def oren_nayar_ab(sigma: float) -> tuple[float, float]:
-    """Oren-Nayar coefficients ``(A, B)`` for facet slope deviation ``sigma`` (radians)."""
-    s2 = sigma * sigma
-    return 1.0 - 0.5 * s2 / (s2 + 0.33), 0.45 * s2 / (s2 + 0.09)
-
-
-@numba.njit(cache=True, fastmath=False)
-def oren_nayar_factor(sigma: float, cos_i: float, cos_o: float, cos_io: float) -> float:
-    """Oren-Nayar factor ``A + B max(0, cos dphi) sin(a) tan(b)`` (1 for ``sigma = 0``); both cosines > 0."""
-    if sigma == 0.0:
-        return 1.0
-    a, b = oren_nayar_ab(sigma)
-    # cos(dphi) sin_i sin_o = cos_io - cos_i cos_o;  sin(a) tan(b) = sin_i sin_o / max(cos_i, cos_o).
-    return a + b * max(cos_io - cos_i * cos_o, 0.0) / max(cos_i, cos_o)
-
-
-# --- physically based families (classes and tables in brdfrig.fit.pbr) -----------------------------
-
-KIND_LAYERED = 3
-KIND_CONDUCTOR = 4
-TABLE_SIZE = 32
-"""Nodes of the layered kind's directional tables, at ``cos = (k / (TABLE_SIZE - 1))^2`` (dense at grazing)."""
-LAYERED_HEAD = 8
-"""Leading scalars of a layered row: ``dA, dB, specular_weight, alpha, ior, fuzz_color, fuzz_alpha, 1/norm``;
-then two tables of :data:`TABLE_SIZE` nodes: the base's transmission ``t(cos)`` and the fuzz's ``1 - E_fuzz(cos)``."""
-LAYERED_PARAMS = LAYERED_HEAD + 2 * TABLE_SIZE
-CONDUCTOR_PARAMS = 4
-"""A conductor row: ``a0, a1, a2, alpha`` with ``F = a0 (1 - (1-c)^5) + a1 (1-c)^5 - a2 q(c)`` (see :func:`f82_q`)."""
-F82_COS = 1.0 / 7.0
-"""``cos`` at which the F82 tint is specified (82 degrees; OpenPBR, Hoffman 2019)."""
-
-
-@numba.njit(cache=True, fastmath=False)
-def table_lookup(p: np.ndarray, start: int, cos_t: float) -> float:
-    """Piecewise-linear value of the table ``p[start:start+TABLE_SIZE]`` (nodes ``(k/(K-1))^2``) at ``cos_t``."""
-    x = math.sqrt(min(max(cos_t, 0.0), 1.0)) * (TABLE_SIZE - 1)
-    k = min(int(x), TABLE_SIZE - 2)
-    f = x - k
-    return (1.0 - f) * p[start + k] + f * p[start + k + 1]
-
-
-@numba.njit(cache=True, fastmath=False)
-def fresnel_dielectric(cos_d: float, eta: float) -> float:
-    """Unpolarised Fresnel reflectance of light arriving from outside a dielectric of relative IOR ``eta >= 1``."""
-    c = min(max(cos_d, 0.0), 1.0)
-    g = math.sqrt(eta * eta - 1.0 + c * c)
-    a = (g - c) / (g + c)
-    b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-    return 0.5 * a * a * (1.0 + b * b)
-
-
-@numba.njit(cache=True, fastmath=False)
-def charlie_sheen(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> float:
-    """Charlie sheen lobe ``D V`` (1/sr) with the Estevez-Kulla Lambda fit (glTF KHR_materials_sheen).
-
-    ``D = (2 + 1/alpha) sin(theta_h)^(1/alpha) / (2 pi)``, ``V = 1 / ((1 + L(cos_i) + L(cos_o)) 4 cos_i cos_o)``;
-    ``alpha = fuzz_roughness^2``; both cosines > 0.
-    """
-    norm2 = 2.0 + 2.0 * cos_io
-    if norm2 <= 1e-300:
-        return 0.0
-    cos_h = (cos_i + cos_o) / math.sqrt(norm2)
-    sin2 = max(1.0 - cos_h * cos_h, 0.0)
-    inv = 1.0 / alpha
-    d = (2.0 + inv) * sin2 ** (0.5 * inv) / (2.0 * math.pi)
-    lam = _sheen_lambda(cos_i, alpha) + _sheen_lambda(cos_o, alpha)
-    return d / ((1.0 + lam) * 4.0 * cos_i * cos_o)
-
-
-@numba.njit(cache=True, fastmath=False)
-def _sheen_l(x: float, alpha: float) -> float:
-    t = (1.0 - alpha) * (1.0 - alpha)
-    a = 21.5473 + (25.3245 - 21.5473) * t
-    b = 3.82987 + (3.32435 - 3.82987) * t
-    c = 0.19823 + (0.16801 - 0.19823) * t
-    d = -1.97760 + (-1.27393 + 1.97760) * t
-    e = -4.32054 + (-4.85967 + 4.32054) * t
-    return a / (1.0 + b * x**c) + d * x + e
-
-
-@numba.njit(cache=True, fastmath=False)
-def _sheen_lambda(cos_t: float, alpha: float) -> float:
-    if cos_t < 0.5:
-        return math.exp(_sheen_l(cos_t, alpha))
-    return math.exp(2.0 * _sheen_l(0.5, alpha) - _sheen_l(1.0 - cos_t, alpha))
-
-
-@numba.njit(cache=True, fastmath=False)
-def f82_q(cos_d: float) -> float:
-    """Shape of the F82-tint correction ``c (1-c)^6 / (cb (1-cb)^6)`` with ``cb = 1/7`` (1 at 82 degrees)."""
-    cb = F82_COS
-    return cos_d * (1.0 - cos_d) ** 6 / (cb * (1.0 - cb) ** 6)
-
-
-@numba.njit(cache=True, fastmath=False)
-def layered_rho(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
-    """Fuzz over a GGX dielectric coating over a diffuse base (row layout :data:`LAYERED_HEAD`); cosines > 0.
-
-    ``rho = fuzz_color sheen + m(i,o) w F_ior(h.wi) D G2 / (4 cos_i cos_o)
-    + t(cos_i) t(cos_o) / norm (dA + dB retro) / pi`` with ``m = min(1 - E_fuzz(cos_i), 1 - E_fuzz(cos_o))``.
-    """
-    out = 0.0
-    if p[0] != 0.0 or p[1] != 0.0:
-        retro = max(cos_io - cos_i * cos_o, 0.0) / max(cos_i, cos_o)
-        t = table_lookup(p, LAYERED_HEAD, cos_i) * table_lookup(p, LAYERED_HEAD, cos_o) * p[7]
-        out += t * (p[0] + p[1] * retro) / math.pi
-    if p[2] != 0.0:
-        lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
-        m = min(table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_i), table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_o))
-        out += p[2] * m * fresnel_dielectric(cos_d, p[4]) * lobe
-    if p[5] != 0.0:
-        out += p[5] * charlie_sheen(cos_i, cos_o, cos_io, p[6])
-    return out
-
-
-@numba.njit(cache=True, fastmath=False)
-def conductor_rho(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
-    """GGX conductor with the F82-tint Fresnel in its linear form (:data:`CONDUCTOR_PARAMS`); cosines > 0."""
-    lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
-    s5 = (1.0 - cos_d) ** 5
-    return (p[0] * (1.0 - s5) + p[1] * s5 - p[2] * f82_q(cos_d)) * lobe
-
-
-@numba.njit(cache=True, fastmath=False)
-def rho_channel(kind: int, p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
-    """BRDF value (1/sr) of one channel with parameter row ``p`` (see :data:`NUM_PARAMS`, :data:`LAYERED_HEAD`,
-    :data:`CONDUCTOR_PARAMS`).
-
-    ``cos_i = n.wi``, ``cos_o = n.wo``, ``cos_io = wi.wo``; 0 when either
-    direction is at or below the horizon.
-    """
-    if cos_i <= 0.0 or cos_o <= 0.0:
-        return 0.0
-    if kind == KIND_LAYERED:
-        return layered_rho(p, cos_i, cos_o, cos_io)
-    if kind == KIND_CONDUCTOR:
-        return conductor_rho(p, cos_i, cos_o, cos_io)
-    diffuse = p[0] / math.pi * oren_nayar_factor(p[4], cos_i, cos_o, cos_io)
-    if kind == KIND_LAMBERTIAN:
-        return diffuse
-    if kind == KIND_BLINN_PHONG:
-        norm2 = 2.0 + 2.0 * cos_io
-        if norm2 <= 1e-300:
-            return diffuse
-        cos_h = (cos_i + cos_o) / math.sqrt(norm2)
-        e = p[2]
-        return diffuse + p[1] * (e + 8.0) / (8.0 * math.pi) * cos_h**e
-    # KIND_GGX: Schlick F = f0 + (f90 - f0) (1 - h.wi)^5
-    lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
-    return diffuse + (p[1] + (p[2] - p[1]) * (1.0 - cos_d) ** 5) * lobe
-
-
-@numba.njit(cache=True, fastmath=False, parallel=True)
-def rho_from_cosines(kind: int, params: np.ndarray, cos_i: np.ndarray, cos_o: np.ndarray, cos_io: np.ndarray) -> np.ndarray:
-    """Vectorised :func:`rho_channel`: cosines (N,), ``params`` (C, NUM_PARAMS) -> rho (N, C)."""
-    n = cos_i.shape[0]
-    nc = params.shape[0]
-    out = np.empty((n, nc))
-    for i in numba.prange(n):
-        for c in range(nc):
-            out[i, c] = rho_channel(kind, params[c], cos_i[i], cos_o[i], cos_io[i])
-    return out
+__all__ = ["AnalyticBRDF", "Lambertian", "OrenNayar", "BlinnPhong", "GGX", *_rho.__all__]
 
 
 def _per_channel(name: str, value, lower: float, upper: float = math.inf) -> np.ndarray:
@@ -336,9 +137,6 @@ class AnalyticBRDF:
 
     def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
         """Radiance (N, C) seen from ``v = (0, 0, 1)``: brute-force quadrature over ``env`` (:mod:`brdfrig.fit.groundtruth`)."""
-        # Deferred import: brdfrig.fit.groundtruth imports this module for rho_channel.
-        from brdfrig.fit.groundtruth import render_groundtruth
-
         return render_groundtruth(self, normals, env)
 
     def to_dict(self) -> dict:
