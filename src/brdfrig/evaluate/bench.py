@@ -53,7 +53,9 @@ import math
 import os
 import statistics
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
+from functools import partial
 from pathlib import Path
 from typing import Callable, TypeVar
 
@@ -307,70 +309,122 @@ def run_benchmark(
         ``(brdf, normals, env) -> radiance`` (default :func:`brdfrig.fit.groundtruth.render_groundtruth`;
         ``capture`` passes a disk-cached one).  Called once per lighting.
     """
+    phases: dict[str, float] = {}
+    with _phase(phases, "ground truth"):
+        truth = _render_truth(fit_env, test_env, sphere, config, groundtruth, progress)
+    with _phase(phases, "warm-up"):
+        _warm_up(sphere, fit_env, groundtruth)
+    with _phase(phases, "table fits"):
+        rows, stages = _fit_table(truth, test_env, config, progress)
+    headline, headline_times = {}, {}
+    if config.headline_size:
+        with _phase(phases, "headline"):
+            headline, headline_times = _headline_timings(sphere, truth, config, progress)
+    return BenchResult(rows, headline, config.headline_size, config.headline_lmax, lighting, headline_times, phases,
+                       stages)
+
+
+@contextmanager
+def _phase(phases: dict[str, float], name: str):
+    """Record the wall seconds of the ``with`` block as ``phases[name]``."""
+    t0 = time.perf_counter()
+    yield
+    phases[name] = time.perf_counter() - t0
+
+
+@dataclass
+class _Truth:
+    """The table's sphere pixels (seen ones only), the rotated fit lightings, their renders and the test render."""
+
+    normals: np.ndarray
+    weights: np.ndarray
+    envs: list[Environment]
+    images: list[np.ndarray]
+    test: np.ndarray
+
+
+def _render_truth(fit_env: Environment, test_env: Environment, sphere: SphereGeometry, config: BenchConfig,
+                  groundtruth: GroundTruth, progress: bool) -> _Truth:
+    """Ground-truth renders of :data:`TRUTH` under each fit lighting (turned in 30 degree steps) and the test one."""
     from tqdm import tqdm
 
-    phases: dict[str, float] = {}
-    t_phase = time.perf_counter()
     normals, weights = sphere(config.sphere_size)
     seen = weights > 0
     normals, weights = normals[seen], weights[seen]
-    max_scenes = max(config.scene_counts)
-    envs = [rotate_environment(fit_env, math.radians(30 * k)) for k in range(max_scenes)]
+    envs = [rotate_environment(fit_env, math.radians(30 * k)) for k in range(max(config.scene_counts))]
     images = [groundtruth(TRUTH, normals, e) for e in tqdm(envs, desc="ground truth", disable=not progress)]
-    truth_test = groundtruth(TRUTH, normals, test_env)
-    phases["ground truth"] = time.perf_counter() - t_phase
+    return _Truth(normals, weights, envs, images, groundtruth(TRUTH, normals, test_env))
 
-    t_phase = time.perf_counter()
-    _warm_up(sphere, fit_env, groundtruth)
-    phases["warm-up"] = time.perf_counter() - t_phase
+
+class _StagedFit:
+    """One table case's fit as :func:`time_runs` calls it; every run's ``stage_seconds`` are added to ``stages``."""
+
+    def __init__(self, scenes: list[Scene], case: tuple[str, str, int, int], stages: dict[str, float]) -> None:
+        self.scenes, self.case, self.stages = scenes, case, stages
+
+    def __call__(self):
+        model, solver, lmax, _ = self.case
+        res = _fit(self.scenes, model, solver, lmax)
+        _add_stages(self.stages, res.report)
+        return res
+
+
+def _another_run_fits(t_table: float, started: float, done: int, left: int, budget_s: float, run_s: float) -> bool:
+    """Another run of ``run_s`` seconds fits the table's budget, the ``left`` cases costing the mean of the ``done``
+    ones (``started`` seconds after ``t_table``; this one's cost if none is done)."""
+    mean = started / done if done else run_s
+    return time.perf_counter() - t_table + run_s + left * mean <= budget_s
+
+
+def _fit_table(truth: _Truth, test_env: Environment, config: BenchConfig,
+               progress: bool) -> tuple[list[BenchRow], dict[str, float]]:
+    """Every case of :func:`plan_cases`, timed and relit: the rows in table order and the fits' summed stages."""
+    from tqdm import tqdm
 
     # The rotated environments and their renders are shared by every case (scenes are views of them).
-    scenes_of = {n: [Scene(envs[k], normals, images[k], weights) for k in range(n)] for n in config.scene_counts}
+    scenes_of = {n: [Scene(truth.envs[k], truth.normals, truth.images[k], truth.weights) for k in range(n)]
+                 for n in config.scene_counts}
     cases = plan_cases(config)
     # A fixed random order makes tqdm's rate-based ETA unbiased (case costs span three decades).
     order = np.random.default_rng(0).permutation(len(cases))
-    rows: dict[int, BenchRow] = {}
+    rows: list[BenchRow | None] = [None] * len(cases)
     stages: dict[str, float] = {}
     t_table = time.perf_counter()
     bar = tqdm(order, desc="fits", unit="case", disable=not progress)
     for done, i in enumerate(bar):
         model, solver, lmax, count = cases[i]
         bar.set_postfix_str(f"{model} {solver} l={lmax} scenes={count}", refresh=True)
-        started = time.perf_counter() - t_table
-        left = len(cases) - done - 1
-
-        def extra_ok(run_s: float) -> bool:
-            """Another run fits the budget, the cases left costing the mean of those done (this one's if none)."""
-            mean = started / done if done else run_s
-            return time.perf_counter() - t_table + run_s + left * mean <= config.budget_s
-
-        def fit():
-            res = _fit(scenes_of[count], model, solver, lmax)
-            _add_stages(stages, res.report)
-            return res
-
-        times, result = time_runs(fit, config.runs, extra_ok)
-        err = relative_rms(result.brdf.predict(test_env, normals), truth_test, weights)
-        rank, cond = _stats(result.report, model)
-        rows[i] = BenchRow(model, solver, lmax, count, statistics.median(times), err, rank, cond, tuple(times))
+        budget = partial(_another_run_fits, t_table, time.perf_counter() - t_table, done, len(cases) - done - 1,
+                         config.budget_s)
+        times, result = time_runs(_StagedFit(scenes_of[count], cases[i], stages), config.runs, budget)
+        rows[i] = _row(cases[i], times, result, test_env, truth)
     bar.close()
-    phases["table fits"] = time.perf_counter() - t_table
+    return rows, stages
 
+
+def _row(case: tuple[str, str, int, int], times: list[float], result, test_env: Environment, truth: _Truth) -> BenchRow:
+    """A table row: a case's run times and how well its last fit relights the sphere under ``test_env``."""
+    model, solver, lmax, count = case
+    err = relative_rms(result.brdf.predict(test_env, truth.normals), truth.test, truth.weights)
+    rank, cond = _stats(result.report, model)
+    return BenchRow(model, solver, lmax, count, statistics.median(times), err, rank, cond, tuple(times))
+
+
+def _headline_timings(sphere: SphereGeometry, truth: _Truth, config: BenchConfig,
+                      progress: bool) -> tuple[dict[int, float], dict[int, tuple[float, ...]]]:
+    """Median and all run times of the ``full`` joint fit of ``headline_size`` images, by scene count (1 and all)."""
+    from tqdm import tqdm
+
+    big_normals, big_weights = sphere(config.headline_size)
+    big = [_resample(img, truth.normals, config.sphere_size, big_normals) for img in truth.images]
     headline, headline_times = {}, {}
-    if config.headline_size:
-        t_phase = time.perf_counter()
-        big_normals, big_weights = sphere(config.headline_size)
-        big = [_resample(img, normals, config.sphere_size, big_normals) for img in images]
-        counts = sorted({1, max_scenes})
-        for count in tqdm(counts, desc="headline", disable=not progress):
-            scenes = [Scene(envs[k], big_normals, big[k], big_weights) for k in range(count)]
-            # Every run counts here (no budget): the headline is a median, not one possibly unlucky run.
-            times, _ = time_runs(lambda: _fit(scenes, "full", "joint", config.headline_lmax), config.runs, lambda s: True)
-            headline[count], headline_times[count] = statistics.median(times), tuple(times)
-        phases["headline"] = time.perf_counter() - t_phase
-    return BenchResult([rows[i] for i in range(len(cases))], headline, config.headline_size, config.headline_lmax,
-                       lighting, headline_times, phases, stages)
-
+    for count in tqdm(sorted({1, len(truth.envs)}), desc="headline", disable=not progress):
+        scenes = [Scene(truth.envs[k], big_normals, big[k], big_weights) for k in range(count)]
+        # Every run counts here (no budget): the headline is a median, not one possibly unlucky run.
+        fit = partial(_fit, scenes, "full", "joint", config.headline_lmax)
+        times, _ = time_runs(fit, config.runs, lambda s: True)
+        headline[count], headline_times[count] = statistics.median(times), tuple(times)
+    return headline, headline_times
 
 def format_table(rows: list[BenchRow]) -> str:
     """Fixed-width table of all rows (``n`` = fits timed; ``time_s`` = their median)."""

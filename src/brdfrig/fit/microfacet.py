@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
@@ -374,113 +375,203 @@ def fit_microfacet(
         the fit subsample), ``pixels_used``, ``env_samples`` per scene,
         ``lobe_renders`` (quadrature passes), ``seconds``.
     """
-    from tqdm import tqdm
-
     t0 = time.perf_counter()
     channels = _check_scenes(scenes)
+    series_bands = _series_bands(lmax, bands, alpha_range, series)
+    spec = ModelSpec("diffuse", lmax, bands=series_bands) if series_bands else None
+    data, check = _pixel_sets(scenes, spec, lmax, max_pixels, env_rows, seed)
+    problems = [_Channel(data.series[:, :, c], data.target[:, c]) for c in range(channels)]
+    search = _search_roughness(data, problems, alpha_range, progress)
+    # The series stays only if it predicts the check pixels better by more than SERIES_MIN_GAIN
+    # (else it fits noise and extrapolates it).
+    solutions, check_err = _solve_variants(data, check, problems, search.log_alpha)
+    keep_series = spec is not None and len(check.target) > 0 and check_err["with_series"] < (1 - SERIES_MIN_GAIN) * check_err["base_only"]
+    amplitudes = _final_amplitudes(data, solutions, search.log_alpha, keep_series, len(series_bands))
+    analytic, base_params = _analytic_part(search.log_alpha, amplitudes.amps)
+    brdf = MicrofacetBRDF(analytic, DiffuseBRDF(spec, amplitudes.coef) if keep_series else None)
+    series_check = {
+        "candidate_bands": list(series_bands),
+        "check_pixels": int(len(check.target)),
+        "check_relative_rms": check_err,
+        "kept": keep_series,
+    }
+    report = _report(analytic, base_params, search, amplitudes, series_check, data, check)
+    report["seconds"] = time.perf_counter() - t0
+    return brdf, report
+
+
+def _series_bands(lmax: int, bands: tuple[int, ...] | None, alpha_range: tuple[float, float], series: bool) -> tuple[int, ...]:
+    """Validate the options of :func:`fit_microfacet`; the series bands it offers (``bands`` within ``1..lmax``, none
+    unless ``series``)."""
     lo, hi = alpha_range
     if not 0 < lo < hi:
         raise ValueError(f"alpha_range must satisfy 0 < low < high, got {alpha_range}")
     if lmax < 0:
         raise ValueError(f"lmax must be >= 0, got {lmax}")
-    series_bands = tuple(b for b in (range(1, lmax + 1) if bands is None else bands) if 1 <= b <= lmax) if series else ()
-    spec = ModelSpec("diffuse", lmax, bands=series_bands) if series_bands else None
+    if not series:
+        return ()
+    return tuple(b for b in (range(1, lmax + 1) if bands is None else bands) if 1 <= b <= lmax)
+
+
+def _pixel_sets(scenes: list[Scene], spec: ModelSpec | None, lmax: int, max_pixels: int, env_rows: int,
+                seed: int) -> tuple[_Pixels, _Pixels]:
+    """The fit and check pixel sets (:func:`_subsample`), lobes rendered under ``env_rows``-row environments.
+
+    The base is smooth and rendered once, under environments coarsened to :data:`BASE_ENV_ROWS` rows at most:
+    near-full resolution keeps its quadrature error out of the series decision (rendered on the lobe's 48-row
+    cells, its error made the series look useful: kept, it relit at 0.6% instead of 0.1%).
+    """
     fit_picks, check_picks = _subsample(scenes, max_pixels, np.random.default_rng(seed))
     coarse = [coarsen_environment(s.env, env_rows) for s in scenes]
-    # The base is smooth and rendered once: near-full resolution keeps its quadrature error out of the
-    # series decision (rendered on the lobe's 48-row cells, its error made the series look useful: kept,
-    # it relit at 0.6% instead of 0.1%).
     base_envs = [coarsen_environment(s.env, BASE_ENV_ROWS) if len(s.env.solid_angle) > 2 * BASE_ENV_ROWS**2 else s.env for s in scenes]
     data = _Pixels(scenes, fit_picks, coarse, base_envs, spec, lmax)
-    problems = [_Channel(data.series[:, :, c], data.target[:, c]) for c in range(channels)]
-    bar = tqdm(desc="microfacet fit", unit="channel", total=channels, disable=not progress, leave=False)
+    return data, _Pixels(scenes, check_picks, coarse, base_envs, spec, lmax)
 
-    grid = np.linspace(math.log(lo), math.log(hi), GRID_POINTS)
-    costs = np.empty((GRID_POINTS, channels))
+
+@dataclass
+class _Roughness:
+    """The roughness search's outcome per channel: ``log_alpha`` (C,), optimum on the interval's edge, Brent converged."""
+
+    log_alpha: np.ndarray
+    at_bound: list[bool]
+    converged: list[bool]
+
+
+def _search_roughness(data: _Pixels, problems: list[_Channel], alpha_range: tuple[float, float],
+                      progress: bool) -> _Roughness:
+    """Every channel's roughness: a shared log-spaced grid pass, then a bounded Brent search per channel."""
+    from tqdm import tqdm
+
+    channels = len(problems)
+    bar = tqdm(desc="microfacet fit", unit="channel", total=channels, disable=not progress, leave=False)
+    grid = np.linspace(math.log(alpha_range[0]), math.log(alpha_range[1]), GRID_POINTS)
+    costs = _grid_costs(data, problems, grid)
+    out = _Roughness(np.empty(channels), [], [])
+    for c in range(channels):
+        out.log_alpha[c], at_bound, converged = _refine_roughness(data, problems[c], c, grid, costs[:, c])
+        out.at_bound.append(at_bound)
+        out.converged.append(converged)
+        bar.update(1)
+    bar.close()
+    return out
+
+
+def _grid_costs(data: _Pixels, problems: list[_Channel], grid: np.ndarray) -> np.ndarray:
+    """Squared residuals (len(grid), C) of every channel at each log roughness of ``grid`` (one render per point)."""
+    channels = len(problems)
+    costs = np.empty((len(grid), channels))
     for g, log_alpha in enumerate(grid):
         cols = data.columns(log_alpha, list(range(channels)))
         costs[g] = [problems[c].solve(cols[:, c])[0] for c in range(channels)]
+    return costs
 
-    log_alphas, at_bound, converged = np.empty(channels), [], []
-    for c in range(channels):
-        b = int(np.argmin(costs[:, c]))
-        res = minimize_scalar(
-            lambda g: problems[c].solve(data.columns(g, [c])[:, 0])[0],
-            bounds=(grid[max(b - 1, 0)], grid[min(b + 1, GRID_POINTS - 1)]),
-            method="bounded",
-            options={"xatol": ALPHA_XTOL},
-        )
-        log_alphas[c] = res.x if res.fun <= costs[b, c] else grid[b]
-        at_bound.append(bool(b in (0, GRID_POINTS - 1) and abs(log_alphas[c] - grid[b]) < 1e-2))
-        converged.append(bool(res.success))
-        bar.update(1)
-    bar.close()
 
-    # Amplitudes at the chosen roughness, with and without the series; the series stays only if it
-    # predicts the check pixels better by more than SERIES_MIN_GAIN (else it fits noise and extrapolates it).
-    check = _Pixels(scenes, check_picks, coarse, base_envs, spec, lmax)
+def _refine_roughness(data: _Pixels, problem: _Channel, c: int, grid: np.ndarray,
+                      costs: np.ndarray) -> tuple[float, bool, bool]:
+    """Channel ``c``'s log roughness by a bounded Brent search between the neighbours of its best grid point.
+
+    Returns (log alpha, on the search interval's edge, Brent converged); the grid point stays when Brent does worse.
+    """
+    b = int(np.argmin(costs))
+    last = len(grid) - 1
+    res = minimize_scalar(
+        lambda g: problem.solve(data.columns(g, [c])[:, 0])[0],
+        bounds=(grid[max(b - 1, 0)], grid[min(b + 1, last)]),
+        method="bounded",
+        options={"xatol": ALPHA_XTOL},
+    )
+    log_alpha = res.x if res.fun <= costs[b] else grid[b]
+    return log_alpha, bool(b in (0, last) and abs(log_alpha - grid[b]) < 1e-2), bool(res.success)
+
+
+def _solve_variants(data: _Pixels, check: _Pixels, problems: list[_Channel],
+                    log_alpha: np.ndarray) -> tuple[list[dict], dict[str, float]]:
+    """Amplitudes at the chosen roughness with the series and without, and how well each predicts the check pixels.
+
+    Returns per channel ``{"with_series" | "base_only": (squared residual, amplitudes (4,), series coefficients)}``
+    and each variant's relative RMS error over the check pixels of all channels.
+    """
+    channels = len(problems)
     no_series = [_Channel(data.series[:, :0, c], data.target[:, c]) for c in range(channels)]
-    check_err = {"with_series": 0.0, "base_only": 0.0}
-    solutions = []  # per channel: variant -> (squared residual, amplitudes, series coefficients)
+    squared = {"with_series": 0.0, "base_only": 0.0}
+    solutions = []
     for c in range(channels):
-        cols, check_cols = data.columns(log_alphas[c], [c])[:, 0], check.columns(log_alphas[c], [c])[:, 0]
+        cols, check_cols = data.columns(log_alpha[c], [c])[:, 0], check.columns(log_alpha[c], [c])[:, 0]
         sol = {"with_series": problems[c].solve(cols), "base_only": no_series[c].solve(cols)}
         for variant, (_, a, x) in sol.items():
-            check_err[variant] += float(np.sum((check_cols @ a + check.series[:, : len(x), c] @ x - check.target[:, c]) ** 2))
+            squared[variant] += float(np.sum((check_cols @ a + check.series[:, : len(x), c] @ x - check.target[:, c]) ** 2))
         solutions.append(sol)
     norm = max(float(np.sum(check.target**2)), 1e-300)
-    check_err = {k: math.sqrt(v / norm) for k, v in check_err.items()}
-    keep_series = spec is not None and len(check.target) > 0 and check_err["with_series"] < (1 - SERIES_MIN_GAIN) * check_err["base_only"]
-    amps, coef = np.empty((channels, 4)), np.zeros((len(series_bands), channels))
+    return solutions, {k: math.sqrt(v / norm) for k, v in squared.items()}
+
+
+@dataclass
+class _Amplitudes:
+    """The chosen variant's linear unknowns: ``amps`` (C, 4) ``(dA, dB, f0, f90)`` on their constraints, series
+    ``coef`` (nb, C), the fit set's summed squared residual ``cost`` and each channel's ``lobe_share``."""
+
+    amps: np.ndarray
+    coef: np.ndarray
+    cost: float
+    lobe_share: list[float]
+
+
+def _final_amplitudes(data: _Pixels, solutions: list[dict], log_alpha: np.ndarray, keep_series: bool,
+                      n_series: int) -> _Amplitudes:
+    """The chosen variant's amplitudes (:func:`_solve_variants`), its residual and each channel's lobe share."""
+    channels = len(solutions)
+    amps, coef = np.empty((channels, 4)), np.zeros((n_series, channels))
     cost, lobe_share = 0.0, []
     for c in range(channels):
-        cols = data.columns(log_alphas[c], [c])[:, 0]
+        cols = data.columns(log_alpha[c], [c])[:, 0]
         r2, amps[c], x = solutions[c]["with_series" if keep_series else "base_only"]
         coef[:, c] = x if keep_series else 0.0
         cost += r2
         lobe = cols[:, 2:] @ amps[c, 2:]
         fitted = cols @ amps[c] + data.series[:, :, c] @ coef[:, c]
         lobe_share.append(float(np.linalg.norm(lobe) / max(float(np.linalg.norm(fitted)), 1e-300)))
-
     # The exact solve meets its constraints to rounding (1e-15): put the amplitudes back on them.
     amps = np.maximum(amps, 0.0)
     amps[:, 3] = np.minimum(amps[:, 3], 1.0)
     amps[:, 2] = np.minimum(amps[:, 2], amps[:, 3])
-    base_params = [_oren_nayar(amps[c, 0], amps[c, 1]) for c in range(channels)]
-    alpha = np.exp(log_alphas)
+    return _Amplitudes(amps, coef, cost, lobe_share)
+
+
+def _analytic_part(log_alpha: np.ndarray, amps: np.ndarray) -> tuple[GGX, list[tuple[float, float, bool]]]:
+    """The GGX lobe over its Oren-Nayar base, and the base's ``(albedo, sigma, clamped)`` per channel."""
+    base_params = [_oren_nayar(a[0], a[1]) for a in amps]
     analytic = GGX(
-        alpha=alpha,
+        alpha=np.exp(log_alpha),
         f0=amps[:, 2],
         diffuse=[p[0] for p in base_params],
         f90=amps[:, 3],
         diffuse_sigma=[p[1] for p in base_params],
     )
-    brdf = MicrofacetBRDF(analytic, DiffuseBRDF(spec, coef) if keep_series else None)
-    has_lobe = [share >= LOBE_MIN_FRACTION for share in lobe_share]
-    report = {
+    return analytic, base_params
+
+
+def _report(analytic: GGX, base_params: list, search: _Roughness, amplitudes: _Amplitudes, series_check: dict,
+            data: _Pixels, check: _Pixels) -> dict:
+    """The fit report of :func:`fit_microfacet` (its docstring), ``seconds`` aside."""
+    has_lobe = [share >= LOBE_MIN_FRACTION for share in amplitudes.lobe_share]
+    at_bound = search.at_bound
+    return {
         "model": "microfacet",
-        "alpha": alpha.tolist(),
-        "f0": amps[:, 2].tolist(),
-        "f90": amps[:, 3].tolist(),
+        "alpha": np.exp(search.log_alpha).tolist(),
+        "f0": amplitudes.amps[:, 2].tolist(),
+        "f90": amplitudes.amps[:, 3].tolist(),
         "diffuse_albedo": analytic.diffuse.tolist(),
         "diffuse_sigma": analytic.diffuse_sigma.tolist(),
         "sigma_clamped": [p[2] for p in base_params],
-        "series_bands": list(series_bands) if keep_series else [],
-        "series_check": {
-            "candidate_bands": list(series_bands),
-            "check_pixels": int(len(check.target)),
-            "check_relative_rms": check_err,
-            "kept": keep_series,
-        },
+        "series_bands": list(series_check["candidate_bands"]) if series_check["kept"] else [],
+        "series_check": series_check,
         "alpha_at_bound": at_bound,
-        "lobe_fraction": lobe_share,
+        "lobe_fraction": amplitudes.lobe_share,
         "alpha_determined": [h and not b for h, b in zip(has_lobe, at_bound)],
         "determined": not any(h and b for h, b in zip(has_lobe, at_bound)),
-        "optimizer_converged": all(converged),
-        "relative_rms_residual": float(math.sqrt(cost / max(float(np.sum(data.target**2)), 1e-300))),
+        "optimizer_converged": all(search.converged),
+        "relative_rms_residual": float(math.sqrt(amplitudes.cost / max(float(np.sum(data.target**2)), 1e-300))),
         "pixels_used": int(len(data.target)),
-        "env_samples": [int(len(e.solid_angle)) for e in coarse],
+        "env_samples": [int(len(e.solid_angle)) for e in data.coarse],
         "lobe_renders": data.renders + check.renders,
-        "seconds": time.perf_counter() - t0,
     }
-    return brdf, report
