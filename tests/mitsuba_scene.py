@@ -51,6 +51,15 @@ MATERIALS: dict[str, dict] = {
 """Named Mitsuba BSDFs of the tests (issue 10's must-show materials)."""
 
 
+def require_mitsuba(variant: str = "scalar_rgb"):
+    """Skip the calling test when Mitsuba 3 is absent; otherwise select ``variant`` and return the module."""
+    if importlib.util.find_spec("mitsuba") is None:
+        pytest.skip("mitsuba is not installed (pip install -e '.[dev]')")
+    from brdfrig.evaluate.mitsuba_peer import require_mitsuba as select
+
+    return select(variant)
+
+
 def require_mitsuba_and_probes() -> None:
     """Skip the calling test when Mitsuba 3 or ``../shared/data/probes`` is absent."""
     if importlib.util.find_spec("mitsuba") is None:

@@ -3,9 +3,10 @@
 A diffuse, a plastic-like (``DielectricBRDF``) and a metal-like (``ConductorBRDF``) BRDF are exported; the
 ``<bsdf>`` of each XML file is loaded by Mitsuba itself and rendered on the test sphere (48 px) under the grace
 probe at 64x32 (:mod:`mitsuba_scene`, ``brdfrig.evaluate.mitsuba_peer.render_sphere``); ``brdfrig render``
-renders the BRDF file under the same map.  Oracle: Mitsuba, an independent renderer.  Target: <= 3% relative
+renders the BRDF file under the same map.  Oracle: Mitsuba, an independent renderer.  Targets: <= 3% relative
 RMS over the sphere's pixels 2 px inside the limb (Mitsuba's area pixels vs brdfrig's pixel centres; Mitsuba's
-pixel noise at 1024 spp is about 0.6%).
+pixel noise at 1024 spp is about 0.6%), and the error the export states (its Mitsuba BSDF as brdfrig evaluates
+it, under the standard lightings) within :data:`STATED_SLACK` of the error measured here.
 """
 
 from __future__ import annotations
@@ -30,9 +31,8 @@ BRDFS = {
     "metal": (ConductorBRDF(base_color=[0.95, 0.7, 0.35], specular_color=1.0, specular_roughness=0.4), "principled"),
 }
 TARGET = 0.03
-KNOWN_GAP = {"plastic": "Mitsuba's roughplastic scales its diffuse lobe by T(theta_i) T(theta_o) / (eta^2 (1 - F_dr)) "
-                        "(0.77x brdfrig's DielectricBRDF here: 20% in rendered radiance); the exporter writes "
-                        "diffuse_reflectance = base_color and states error 0 against its own equivalent"}
+STATED_SLACK = 0.02
+"""The stated and measured errors differ by lighting (standard lightings vs grace), pixels and Mitsuba's noise."""
 
 
 @pytest.mark.parametrize("name", list(BRDFS))
@@ -62,7 +62,5 @@ def test_mitsuba_renders_the_export_like_brdfrig_renders_the_brdf(name, tmp_path
     error = ms.relative_rms(theirs[rows, cols], ours[rows, cols])
     stated = json.loads((tmp_path / f"{name}.xml.error.json").read_text())["relative_rms"]
     print(f"{name}: Mitsuba {bsdf_type} vs brdfrig render {100 * error:.2f}% (export states {100 * stated:.2f}%)")
-    if name in KNOWN_GAP:
-        assert error > TARGET  # strict: when the exporter's mapping is fixed this fails; then drop KNOWN_GAP
-        pytest.xfail(f"{100 * error:.1f}%: {KNOWN_GAP[name]}")
     assert error <= TARGET
+    assert abs(stated - error) <= STATED_SLACK

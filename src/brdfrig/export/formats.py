@@ -9,7 +9,10 @@ BRDF's renders against the fitted one's.  Parameters a format cannot express are
 - ``table``: rho on a regular (theta_i, theta_o, delta_phi) grid in degrees, as CSV (one row per sample)
   or NPZ (arrays ``theta_i_deg``, ``theta_o_deg``, ``delta_phi_deg``, ``rho`` (I, O, P, C) in 1/sr);
 - ``mitsuba``: a Mitsuba 3 scene-description XML with one ``<bsdf>`` (``diffuse``, ``roughplastic`` or
-  ``principled``, whichever brdfrig's evaluation finds closest), or a whole scene with ``scene_env``;
+  ``principled``), or a whole scene with ``scene_env``.  Each type that suits the renderer material is
+  fitted to the BRDF's standard renders as Mitsuba evaluates it (:mod:`brdfrig.export.mitsuba_fit`,
+  :mod:`brdfrig.export.mitsuba_bsdf`), and the closest is written: the BRDF it stands for is Mitsuba's
+  own model with those parameters;
 - ``openpbr``: a MaterialX document with an ``open_pbr_surface`` and its ``surfacematerial``;
 - ``gltf``: a glTF 2.0 file with one metallic-roughness material and the KHR extensions that apply
   (``KHR_materials_ior``, ``KHR_materials_specular``, ``KHR_materials_sheen``).
@@ -97,47 +100,16 @@ def _table(brdf, material, out: Path, *, step_deg: float = TABLE_STEP_DEG, **_) 
     return tabulate(_GridBRDF((theta, theta, phi), rho)), {"step_deg": step_deg, "samples": int(rho[..., 0].size)}
 
 
-def _rgb(v) -> str:
-    v = np.broadcast_to(np.asarray(v, dtype=float), (3,))
-    return ", ".join(f"{x:.6g}" for x in v)
-
-
-def _mitsuba_candidates(material) -> dict:
-    """Mitsuba BSDF elements the material maps onto exactly, each with the brdfrig BRDF it equals."""
-    from brdfrig.fit.pbr import ConductorBRDF, DielectricBRDF
-
-    d = material.to_dict()
-    out = {}
-    if d["model"] == "conductor":
-        alpha = d["specular_roughness"] ** 2
-        out["principled"] = (
-            f'<bsdf type="principled">\n  <rgb name="base_color" value="{_rgb(d["base_color"])}"/>\n'
-            f'  <float name="metallic" value="1"/>\n  <float name="roughness" value="{math.sqrt(alpha):.6g}"/>\n</bsdf>',
-            ConductorBRDF(base_color=d["base_color"], specular_color=1.0, specular_roughness=d["specular_roughness"]))
-        return out
-    base = np.asarray(d["base_color"], dtype=float)
-    out["diffuse"] = (f'<bsdf type="diffuse">\n  <rgb name="reflectance" value="{_rgb(base)}"/>\n</bsdf>',
-                      DielectricBRDF(base_color=base, specular_weight=0.0, specular_roughness=0.5))
-    if d.get("specular_weight", 0.0) > 0:
-        alpha = d["specular_roughness"] ** 2
-        out["roughplastic"] = (
-            f'<bsdf type="roughplastic">\n  <string name="distribution" value="ggx"/>\n'
-            f'  <float name="alpha" value="{alpha:.6g}"/>\n  <float name="int_ior" value="{d["specular_ior"]:.6g}"/>\n'
-            f'  <float name="ext_ior" value="1"/>\n  <rgb name="diffuse_reflectance" value="{_rgb(base)}"/>\n'
-            f'  <float name="specular_reflectance" value="{d["specular_weight"]:.6g}"/>\n</bsdf>',
-            DielectricBRDF(base_color=base, specular_weight=d["specular_weight"],
-                           specular_roughness=d["specular_roughness"], specular_ior=d["specular_ior"]))
-    return out
-
-
 def _mitsuba(brdf, material, out: Path, *, scene_env: str | None = None, reference=None, **_) -> tuple[object, dict]:
     from brdfrig._atomic import write_text
-    from brdfrig.export.material import fidelity
+    from brdfrig.export.material import fidelity, standard_scenes
+    from brdfrig.export.mitsuba_fit import fit_candidates
 
-    candidates = _mitsuba_candidates(material)
-    errors = {k: fidelity(b, reference).error for k, (_, b) in candidates.items()}
+    reference = standard_scenes(brdf) if reference is None else reference
+    candidates = fit_candidates(material, reference)
+    errors = {k: fidelity(b, reference).error for k, b in candidates.items()}
     chosen = min(errors, key=errors.get)
-    bsdf, equivalent = candidates[chosen]
+    bsdf = candidates[chosen].xml()
     if scene_env is None:
         text = f'<scene version="3.0.0">\n{bsdf}\n</scene>\n'
     else:
@@ -151,7 +123,8 @@ def _mitsuba(brdf, material, out: Path, *, scene_env: str | None = None, referen
             f'  <emitter type="envmap"><string name="filename" value="{scene_env}"/></emitter>\n'
             f'  <shape type="sphere">\n    {bsdf.replace(chr(10), chr(10) + "    ")}\n  </shape>\n</scene>\n')
     write_text(out, text)
-    return equivalent, {"bsdf": chosen, "candidates_relative_rms": errors, "scene": scene_env is not None}
+    return candidates[chosen], {"bsdf": chosen, "candidates_relative_rms": errors,
+                                "parameters": candidates[chosen].mitsuba_dict(), "scene": scene_env is not None}
 
 
 def _openpbr_values(material) -> dict:
