@@ -8,6 +8,7 @@ import os
 
 import pytest
 
+from brdfrig.rig.camera import Camera
 from brdfrig.session import store as store_mod
 from brdfrig.session.config import session_config_from_dict
 from brdfrig.session.runner import resume_session, run_session
@@ -26,7 +27,7 @@ class FakeTurntable:
         self.stops += 1
 
 
-class FakeCamera:
+class FakeCamera(Camera):
     """Writes a small file whose content depends only on (table angle, exposure time)."""
 
     def __init__(self, table, fail_at=None, exc=None):

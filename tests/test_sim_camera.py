@@ -80,6 +80,23 @@ def test_noise_is_deterministic_per_seed(bench, tmp_path):
     assert np.abs(a - c).max() > 0
 
 
+def test_begin_shot_makes_the_noise_a_function_of_the_shot_key(bench, tmp_path):
+    # the session runner calls begin_shot(key) before each capture: a shot's noise must not depend on
+    # how many captures came before it (a resumed session rewrites the same files)
+    cam = SimulatedCamera(bench, seed=5)
+    cam.set_exposure(0.1, 100, 8)
+    frames = {}
+    for k, key in enumerate(["s0-a0-t0", "s0-a0-t1", "s0-a0-t0"]):
+        d = tmp_path / str(k)
+        d.mkdir()
+        cam.begin_shot(key)
+        frames[k] = decode_raw(cam.capture(d))
+    np.testing.assert_array_equal(frames[0], frames[2])
+    assert np.abs(frames[0] - frames[1]).max() > 0
+    # the interface's default is a no-op (real cameras have no noise to seed)
+    assert Camera.begin_shot(object(), "s0-a0-t0") is None
+
+
 def test_iso_and_aperture_scale_the_signal(bench, tmp_path):
     cam = SimulatedCamera(bench, read_noise_e=0.0, full_well_e=1e7)  # almost noiseless
     cam.set_exposure(0.05, 100, 8)

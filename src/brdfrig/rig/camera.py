@@ -18,7 +18,15 @@ __all__ = ["Camera", "check_exposure", "free_name"]
 
 @runtime_checkable
 class Camera(Protocol):
-    """A still camera that writes one file per capture."""
+    """A still camera that writes one file per capture.
+
+    The backends subclass it explicitly and so inherit its no-op :meth:`begin_shot`.
+    """
+
+    def begin_shot(self, key: str) -> None:
+        """Hook called by the session runner before each shot's capture with the shot's key
+        (:func:`brdfrig.session.plan.shot_key`); a real camera ignores it.  The simulator derives its
+        noise from it, so a resumed session writes exactly the files an uninterrupted one would."""
 
     def set_exposure(self, time_s: float, iso: float, f_number: float) -> None:
         """Set shutter time (seconds), ISO and aperture (f-number) for the next captures."""

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Callable
 
 from brdfrig._atomic import temp_path
-from brdfrig.rig.camera import check_exposure, free_name
+from brdfrig.rig.camera import Camera, check_exposure, free_name
 from brdfrig.rig.errors import DeviceBusy, DeviceDisconnected, DeviceNotFound, DeviceRefused
 
 __all__ = ["GphotoCamera", "parse_choice"]
@@ -54,7 +54,7 @@ def parse_choice(text: str) -> float | None:
     return value if math.isfinite(value) and value > 0 else None
 
 
-class GphotoCamera:
+class GphotoCamera(Camera):
     """A USB-tethered camera driven through libgphoto2.
 
     Parameters

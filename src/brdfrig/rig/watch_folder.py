@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable
 
 from brdfrig._atomic import temp_path
-from brdfrig.rig.camera import check_exposure, free_name
+from brdfrig.rig.camera import Camera, check_exposure, free_name
 from brdfrig.rig.errors import DeviceTimeout
 
 __all__ = ["WatchFolderCamera", "CAMERA_EXTENSIONS"]
@@ -28,7 +28,7 @@ __all__ = ["WatchFolderCamera", "CAMERA_EXTENSIONS"]
 CAMERA_EXTENSIONS = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef", ".tif", ".tiff")
 
 
-class WatchFolderCamera:
+class WatchFolderCamera(Camera):
     """Waits for complete new files in ``watch_dir``.
 
     Parameters

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import sys
 import time
 from pathlib import Path
@@ -50,18 +49,6 @@ def check_circles(config: SessionConfig, shape: tuple[int, int], hint: str) -> N
                 check_circle_in_frame(shape, circle, f"key 'circle' in {where} of {config.source}")
             except ValueError as exc:
                 raise ConfigError(f"{exc} {hint}") from None
-
-
-def _seed_for_shot(camera, key: str) -> None:
-    """Make a simulated camera's noise a function of the shot's identity, not of its capture count.
-
-    ``brdfrig.sim.camera.SimulatedCamera`` draws noise from ``(seed, captures)``;
-    resetting ``captures`` to a number derived from the shot key means a
-    resumed session writes exactly the files an uninterrupted one would.
-    Real cameras have no ``captures`` attribute and are left alone.
-    """
-    if hasattr(camera, "captures") and hasattr(camera, "seed"):
-        camera.captures = int.from_bytes(hashlib.sha256(key.encode()).digest()[:4], "little")
 
 
 def frame_mask(shape: tuple[int, int], config: SessionConfig) -> np.ndarray | None:
@@ -112,7 +99,7 @@ class _Runner:
     def _shoot(self, key: str, time_s: float, kind: str, scene: int, angle: float) -> str:
         cam = self.cfg.rig.camera
         self.camera.set_exposure(time_s, cam.iso, cam.f_number)
-        _seed_for_shot(self.camera, key)
+        self.camera.begin_shot(key)  # the simulator's noise follows the shot, not the capture count
         path = self.camera.capture(self.store.incoming)
         rel = self.store.store_file(path, RAW_SUBDIR, key, kind=kind, key=key, scene=scene, angle_deg=angle,
                                     time_s=time_s)

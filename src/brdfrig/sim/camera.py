@@ -20,6 +20,7 @@ deterministic given ``seed`` and the capture count.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from pathlib import Path
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from brdfrig._atomic import temp_path
-from brdfrig.rig.camera import check_exposure, free_name
+from brdfrig.rig.camera import Camera, check_exposure, free_name
 from brdfrig.sim.bench import SimBench
 
 __all__ = ["SimulatedCamera"]
@@ -35,7 +36,7 @@ __all__ = ["SimulatedCamera"]
 _CFA_CHANNEL = np.array([[0, 1], [1, 2]])  # RGGB
 
 
-class SimulatedCamera:
+class SimulatedCamera(Camera):
     """Camera backend over a :class:`brdfrig.sim.bench.SimBench`.
 
     Parameters
@@ -98,6 +99,13 @@ class SimulatedCamera:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def begin_shot(self, key: str) -> None:
+        """Make the noise of the next captures a function of the shot's key, not of the capture count.
+
+        Noise is drawn from ``(seed, captures)``; ``captures`` restarts at a number derived from the key.
+        """
+        self.captures = int.from_bytes(hashlib.sha256(key.encode()).digest()[:4], "little")
 
     def set_exposure(self, time_s: float, iso: float, f_number: float) -> None:
         self.exposure = check_exposure(time_s, iso, f_number)
