@@ -21,12 +21,12 @@ never reuses a stale one. Map resolution: 128 x 64 for the full run.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
 from pathlib import Path
 
+from brdfrig.cli._command import add_command, add_progress_argument
 from brdfrig.errors import InputError
 from brdfrig.ranges import Range
 from brdfrig.evaluate.cache import CachedGroundTruth
@@ -39,12 +39,9 @@ MAP_ROWS = {"quick": 16, "full": 64}
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "bench",
-        help="time-vs-error benchmark of models x solvers x band limits (table, Pareto PNG, headline timings)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(subparsers, "bench",
+                    "time-vs-error benchmark of models x solvers x band limits (table, Pareto PNG, headline timings)",
+                    __doc__)
     p.add_argument("--quick", action="store_true", help="small sphere, band limits 1-3, one scene (< 30 s)")
     p.add_argument("--out", type=Path, default=Path("bench-out"),
                    help="directory for bench.png, bench.json and the ground-truth cache gt-cache/ (default: %(default)s)")
@@ -52,7 +49,7 @@ def register(subparsers) -> None:
                    help="soft time budget of the table's fits: slow cases (>= 1 s) are repeated only while it "
                         "allows; every case runs at least once, faster ones 3 times (default: 210 full, 20 quick)")
     p.add_argument("--probes", type=Path, default=DEFAULT_PROBES, help="directory of lat-long .hdr/.exr probes (default: %(default)s)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_argument(p)
     p.add_argument("--measured", action="store_true",
                    help="the measured-materials benchmark instead (fit under one probe, "
                         "relight under others, every model; table, summary, errors.png, worst.png, measured.json)")

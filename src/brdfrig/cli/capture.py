@@ -11,18 +11,17 @@ use by PID N", exit 2) before anything is written.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 __all__ = ["register", "run"]
 
 
+from brdfrig.cli._command import add_command, add_progress_argument
 from brdfrig.cli.library import add_library_argument
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("capture", help="shoot a capture session on the rig, or resume one",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = add_command(subparsers, "capture", "shoot a capture session on the rig, or resume one", __doc__)
     sub = parser.add_subparsers(dest="capture_command", required=True, metavar="ACTION")
     p_run = sub.add_parser("run", help="run a session plan into a new session directory")
     p_run.add_argument("plan", help="session plan TOML file (e.g. from `brdfrig template plan-bench`)")
@@ -36,7 +35,7 @@ def register(subparsers) -> None:
         p.add_argument("--yes", action="store_true",
                        help="do not prompt between operator scenes (assume each is set up)")
         p.add_argument("--no-fit", action="store_true", help="stop after shooting; fit later with `brdfrig refit`")
-        p.add_argument("--no-progress", action="store_true", help="no progress bars")
+        add_progress_argument(p)
         add_library_argument(p)
     parser.set_defaults(func=run)
 

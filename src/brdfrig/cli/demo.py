@@ -21,9 +21,10 @@ its numbers are not held to the targets.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
+
+from brdfrig.cli._command import add_command, add_progress_argument
 
 __all__ = ["register", "run", "DEMO_CONFIG", "TARGETS"]
 
@@ -35,11 +36,10 @@ SCORE_SIZE = 96
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("demo", help="simulated bench session end to end (the README's main job)",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = add_command(subparsers, "demo", "simulated bench session end to end (the README's main job)", __doc__)
     parser.add_argument("--dir", help="session directory to create (default: a new temporary directory)")
     parser.add_argument("--quick", action="store_true", help="reduced session for smoke tests (targets not enforced)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_argument(parser)
     parser.set_defaults(func=run)
 
 

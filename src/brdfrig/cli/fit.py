@@ -15,21 +15,16 @@ with the colour space the input EXRs declare (`brdfrig merge --colour-space`;
 
 from __future__ import annotations
 
-import argparse
 import sys
 
+from brdfrig.cli._command import add_command, add_progress_argument
 from brdfrig.cli._output import Printer, add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.fit.registry import MODELS, SOLVERS
 from brdfrig.ranges import BANDS
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "fit",
-        help="fit a BRDF to sphere images under lat-long or mirror-ball lighting",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(subparsers, "fit", "fit a BRDF to sphere images under lat-long or mirror-ball lighting", __doc__)
     p.add_argument("--scene", nargs=2, action="append", default=[], metavar=("ENV", "IMAGE"),
                    help="lat-long lighting map and the sphere image taken under it (repeatable)")
     p.add_argument("--probe-scene", nargs=2, action="append", default=[], metavar=("PROBE", "IMAGE"),
@@ -41,7 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--solver", choices=SOLVERS, default="joint", help="least-squares solver (default: %(default)s)")
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_argument(p)
     p.add_argument("--figure", default=None, help="also write a PNG: each scene's image, the fit's rendering and the residual")
     p.add_argument("--report", default=None, metavar="REPORT.html",
                    help="also write a self-contained HTML report: spheres, relighting, BRDF plots, statistics")

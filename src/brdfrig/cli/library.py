@@ -7,8 +7,8 @@ Every refit records its fits there.
 
 from __future__ import annotations
 
-import argparse
 
+from brdfrig.cli._command import add_command
 from brdfrig.ranges import Range
 
 __all__ = ["register", "add_library_argument", "open_library"]
@@ -28,8 +28,7 @@ def open_library(args):
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("library", help="catalogue of measured sessions and their fits",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "library", "catalogue of measured sessions and their fits", __doc__)
     sub = p.add_subparsers(dest="library_command", required=True, metavar="ACTION")
     add = sub.add_parser("add", help="register every session found below a directory (each verified first)")
     add.add_argument("root", help="directory to search for sessions")

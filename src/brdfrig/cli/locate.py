@@ -9,13 +9,13 @@ rename the samples as you like.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
+
+from brdfrig.cli._command import add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("locate", help="find the probe and sample spheres in a test shot (plan lines)",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "locate", "find the probe and sample spheres in a test shot (plan lines)", __doc__)
     p.add_argument("image", type=Path, help="test shot of the bench")
     p.add_argument("--max", type=int, default=8, metavar="N", help="at most N spheres (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print JSON instead of plan lines")

@@ -28,9 +28,9 @@ are set.  The default `camera` keeps camera RGB (no `chromaticities`).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from brdfrig.cli._command import add_command
 from brdfrig.cli._output import add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.hdr.colour import COLOUR_SPACES
 from brdfrig.ranges import EXPOSURE_S as EXPOSURE_TIME
@@ -42,12 +42,9 @@ CLIP_RADIUS = Range(0, 16, integer=True)  # pixels
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "merge",
-        help="merge an exposure bracket (raw/TIFF/JPEG) into a linear HDR EXR with a variance image",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(subparsers, "merge",
+                    "merge an exposure bracket (raw/TIFF/JPEG) into a linear HDR EXR with a variance image",
+                    __doc__)
     p.add_argument("files", nargs="+", type=Path, metavar="FILE", help="the frames of one bracket")
     add_output_arguments(p, "OUT.exr", "output EXR")
     p.add_argument("--times", type=EXPOSURE_TIME.args("each exposure time (s)"), metavar="T1,T2,...",

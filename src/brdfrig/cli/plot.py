@@ -9,15 +9,14 @@ their colours, BRDFs by line style (e.g. a fit against a measured reference).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from brdfrig.cli._command import add_command
 from brdfrig.cli._output import add_output_arguments, check_output
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("plot", help="plot one or more BRDFs (slices and albedo) into a PNG",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "plot", "plot one or more BRDFs (slices and albedo) into a PNG", __doc__)
     p.add_argument("brdfs", nargs="+", type=Path, metavar="BRDF", help="BRDF file or measured material")
     add_output_arguments(p, "FIG.png", "output PNG")
     p.add_argument("--title", default="", help="figure title")

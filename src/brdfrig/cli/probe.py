@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from brdfrig.cli._command import add_command
 from brdfrig.cli._output import add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.ranges import ALBEDO, PIXELS, Range
 
@@ -40,12 +41,9 @@ def _patches(text: str) -> tuple[list[float], list[float]]:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "probe",
-        help="chrome-ball image(s) to a calibrated lat-long environment EXR (unseen directions masked)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(subparsers, "probe",
+                    "chrome-ball image(s) to a calibrated lat-long environment EXR (unseen directions masked)",
+                    __doc__)
     p.add_argument("images", nargs="+", type=Path, metavar="PROBE",
                    help="probe image(s) (.exr/.hdr); several = captures at different ball rotations")
     add_output_arguments(p, "ENV.exr", "output lat-long EXR")

@@ -15,11 +15,11 @@ table at the end lists each session with its result or its reason.
 
 from __future__ import annotations
 
-import argparse
 
 __all__ = ["register", "run"]
 
 
+from brdfrig.cli._command import add_command, add_progress_argument
 from brdfrig.cli.library import add_library_argument, open_library
 
 
@@ -27,8 +27,7 @@ def register(subparsers) -> None:
     from brdfrig.ranges import BANDS, Range
     from brdfrig.session.config import FIT_MODELS, FIT_SOLVERS
 
-    parser = subparsers.add_parser("refit", help="verify a stored session and fit it again (offline)",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = add_command(subparsers, "refit", "verify a stored session and fit it again (offline)", __doc__)
     parser.add_argument("dir", nargs="?", help="session directory")
     parser.add_argument("--batch", metavar="ROOT", help="refit every session found below ROOT on a Dask cluster")
     parser.add_argument("--workers", type=Range(1, 256, integer=True).arg(), default=2,
@@ -39,7 +38,7 @@ def register(subparsers) -> None:
     parser.add_argument("--lmax", type=BANDS.arg(), help=f"lighting band limit{BANDS.text()}")
     parser.add_argument("--pmax", type=BANDS.arg(), help=f"outgoing band limit (full model){BANDS.text()}")
     parser.add_argument("--solver", choices=FIT_SOLVERS)
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_argument(parser)
     add_library_argument(parser)
     parser.set_defaults(func=run)
 

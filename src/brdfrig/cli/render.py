@@ -11,8 +11,8 @@ Written as a linear float32 EXR, atomically.
 
 from __future__ import annotations
 
-import argparse
 
+from brdfrig.cli._command import add_command
 from brdfrig.cli._output import add_json_argument, add_output_arguments, check_output, print_json
 from brdfrig.ranges import Range
 
@@ -20,12 +20,7 @@ SIZE = Range(1, 4096, integer=True)  # image side, pixels
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "render",
-        help="render a sphere with a BRDF file under a lat-long lighting map",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = add_command(subparsers, "render", "render a sphere with a BRDF file under a lat-long lighting map", __doc__)
     p.add_argument("brdf", help="BRDF file written by 'brdfrig fit', or a measured material (.h5 neural fit, MERL .binary)")
     p.add_argument("--lighting", required=True, help="lat-long environment map (EXR or .hdr)")
     p.add_argument("--size", type=SIZE.arg(), required=True,

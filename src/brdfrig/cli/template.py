@@ -7,9 +7,9 @@ bench), fit-full and fit-quick (fit presets for `brdfrig refit --preset`).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from brdfrig.cli._command import add_command
 from brdfrig.cli._output import check_output
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
@@ -20,8 +20,7 @@ def names() -> list[str]:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("template", help="write a copy of a shipped configuration file to edit",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "template", "write a copy of a shipped configuration file to edit", __doc__)
     p.add_argument("name", choices=names(), help="which template")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.toml", help="where to write it")
     p.set_defaults(func=run)
