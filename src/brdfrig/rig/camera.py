@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Protocol, Self, runtime_checkable
 
 __all__ = ["Camera", "check_exposure", "free_name"]
 
@@ -20,8 +20,22 @@ __all__ = ["Camera", "check_exposure", "free_name"]
 class Camera(Protocol):
     """A still camera that writes one file per capture.
 
-    The backends subclass it explicitly and so inherit its no-op :meth:`begin_shot`.
+    The backends subclass it explicitly and so inherit its defaults: a no-op :meth:`begin_shot`,
+    :meth:`open` and :meth:`close`, and a context manager that opens and closes the camera.
     """
+
+    def open(self) -> None:
+        """Connect to the camera (default: nothing to connect)."""
+
+    def close(self) -> None:
+        """Release the camera; never raises (default: nothing to release)."""
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def begin_shot(self, key: str) -> None:
         """Hook called by the session runner before each shot's capture with the shot's key
@@ -33,12 +47,6 @@ class Camera(Protocol):
 
     def capture(self, dest_dir: str | os.PathLike) -> Path:
         """Take one picture; return the path of the complete file written into ``dest_dir``."""
-
-    def close(self) -> None: ...
-
-    def __enter__(self) -> Camera: ...
-
-    def __exit__(self, *exc) -> None: ...
 
 
 def check_exposure(time_s: float, iso: float, f_number: float) -> tuple[float, float, float]:

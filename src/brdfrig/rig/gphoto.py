@@ -104,13 +104,6 @@ class GphotoCamera(Camera):
                 pass
         self._camera = None
 
-    def __enter__(self) -> GphotoCamera:
-        self.open()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     # -- operations -------------------------------------------------------------------------
     def set_exposure(self, time_s: float, iso: float, f_number: float) -> None:
         """Set the nearest available shutter speed, ISO and aperture; the values set are in :attr:`exposure`."""

@@ -83,13 +83,6 @@ class WatchFolderCamera(Camera):
     def close(self) -> None:
         self._seen = None
 
-    def __enter__(self) -> WatchFolderCamera:
-        self.open()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     def set_exposure(self, time_s: float, iso: float, f_number: float) -> None:
         """Record the exposure the vendor software must use (it is announced through ``trigger``)."""
         self.exposure = check_exposure(time_s, iso, f_number)

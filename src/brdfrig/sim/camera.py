@@ -88,18 +88,6 @@ class SimulatedCamera(Camera):
         self.captures = 0
         self.last_angle_deg: float | None = None
 
-    def open(self) -> None:
-        """Nothing to connect."""
-
-    def close(self) -> None:
-        """Nothing to release."""
-
-    def __enter__(self) -> SimulatedCamera:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     def begin_shot(self, key: str) -> None:
         """Make the noise of the next captures a function of the shot's key, not of the capture count.
 
