@@ -104,8 +104,20 @@ def test_mitsuba_export_names_the_closest_bsdf(tmp_path):
     bsdf = ET.parse(out).getroot().find("bsdf")
     assert bsdf.get("type") == "principled" and record["notes"]["bsdf"] == "principled"
     out, record = _export(tmp_path, PLASTIC, "mitsuba", "plastic.xml")
-    assert ET.parse(out).getroot().find("bsdf").get("type") == "roughplastic"
-    assert record["notes"]["candidates_relative_rms"]["roughplastic"] < record["notes"]["candidates_relative_rms"]["diffuse"]
+    bsdf = ET.parse(out).getroot().find("bsdf")
+    assert bsdf.get("type") == "roughplastic"
+    errors = record["notes"]["candidates_relative_rms"]
+    assert errors["roughplastic"] < errors["diffuse"]
+    assert record["relative_rms"] == pytest.approx(errors["roughplastic"], rel=1e-9)  # the written BSDF's own error
+    # the file holds the parameters the error was stated for
+    params = record["notes"]["parameters"]
+    values = {e.get("name"): e.get("value") for e in bsdf}
+    for key in ("alpha", "int_ior", "ext_ior", "specular_reflectance"):
+        assert float(values[key]) == pytest.approx(params[key], rel=1e-5)
+    rgb = [float(x) for x in values["diffuse_reflectance"].split(",")]
+    assert rgb == pytest.approx(params["diffuse_reflectance"]["value"], rel=1e-5)
+    # the Oren-Nayar base is beyond roughplastic: the error says so (fit: 3.9%)
+    assert 0.01 < record["relative_rms"] < 0.06
 
 
 def test_table_export_holds_the_brdf_values(tmp_path):

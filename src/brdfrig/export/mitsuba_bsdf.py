@@ -198,8 +198,8 @@ def _table_at(table: np.ndarray, cos: np.ndarray) -> np.ndarray:
     return table[k] + (x - k) * (table[k + 1] - table[k])
 
 
-def _rgb(v) -> str:
-    return ", ".join(f"{x:.6g}" for x in np.broadcast_to(np.asarray(v, dtype=float), (3,)))
+def _rgb(v: np.ndarray) -> str:
+    return ", ".join(f"{x:.6g}" for x in v)
 
 
 def _colour(name: str, value) -> np.ndarray:
@@ -327,20 +327,24 @@ class MitsubaRoughPlastic(_MitsubaBSDF):
     def _colour(self) -> np.ndarray:
         return self.diffuse_reflectance
 
-    def diffuse_scale(self, cos_i: np.ndarray, cos_o: np.ndarray) -> np.ndarray:
-        """``t(cos_i) t(cos_o) / (pi eta^2 (1 - F_dr,int))``: the diffuse term per unit linear reflectance."""
-        table, internal = rough_interface(self.alpha, self.eta)
-        return _table_at(table, cos_i) * _table_at(table, cos_o) / (math.pi * self.eta**2 * (1.0 - internal))
+    def transmittance(self, cos: np.ndarray) -> np.ndarray:
+        """The interface's transmittance ``t`` at cosines ``cos`` (Mitsuba's linear interpolation of its table)."""
+        return _table_at(rough_interface(self.alpha, self.eta)[0], cos)
+
+    def diffuse_amplitude(self) -> np.ndarray:
+        """(C,) ``R / (1 - F_dr,int) / (pi eta^2)`` (``nonlinear``: ``R / (1 - R F_dr,int) / (pi eta^2)``).
+
+        The diffuse term is this times ``t(cos_i) t(cos_o)``.
+        """
+        internal, r = rough_interface(self.alpha, self.eta)[1], self.diffuse_reflectance
+        return (r / (1.0 - r * internal) if self.nonlinear else r / (1.0 - internal)) / (math.pi * self.eta**2)
 
     def _rho(self, cos_i, cos_o, cos_h, cos_d) -> np.ndarray:
-        table, internal = rough_interface(self.alpha, self.eta)
-        r = self.diffuse_reflectance
-        amp = r / (1.0 - r * internal) if self.nonlinear else r / (1.0 - internal)
-        diffuse = _table_at(table, cos_i) * _table_at(table, cos_o) / (math.pi * self.eta**2)
+        diffuse = self.transmittance(cos_i) * self.transmittance(cos_o)
         f = _fresnel(cos_d, self.eta)
         g = _smith_g1(cos_i, cos_d, self.alpha) * _smith_g1(cos_o, cos_d, self.alpha)
         spec = self.specular_reflectance * f * _ggx_d(cos_h, self.alpha) * g / (4.0 * cos_i * cos_o)
-        return spec[:, None] + diffuse[:, None] * amp[None, :]
+        return spec[:, None] + diffuse[:, None] * self.diffuse_amplitude()[None, :]
 
     def mitsuba_dict(self) -> dict:
         return {"type": "roughplastic", "distribution": "ggx", "alpha": self.alpha, "int_ior": self.int_ior,

@@ -11,10 +11,12 @@ type              amplitudes (bounds)                              shape paramet
 ================  ===============================================  ==========================================
 ``diffuse``       per channel ``reflectance`` in [0, 1]            none
 ``roughplastic``  per channel ``diffuse_reflectance`` in [0, 1];   ``alpha`` within a factor
-                  shared ``specular_reflectance`` in [0, 1]        :data:`ALPHA_FACTOR` of the material's,
-                                                                   then ``int_ior`` in :data:`IOR_BOUNDS`
+                  shared ``specular_reflectance`` in [0, 1]        :data:`ALPHA_FACTOR` of the material's
+                  (``ext_ior = 1``, ``nonlinear`` false)           (>= 1e-3), then ``int_ior`` in
+                                                                   :data:`IOR_BOUNDS`
 ``principled``    per channel ``base_color`` in [0, 1]             ``roughness`` within a factor
                   (``metallic = 1``)                               ``sqrt(ALPHA_FACTOR)`` of the material's
+                                                                   (>= 0.03)
 ================  ===============================================  ==========================================
 
 The fit uses every :data:`FIT_STRIDE`-th pixel of the reference spheres; roughplastic's diffuse column
@@ -88,6 +90,12 @@ class _Target:
         return math.sqrt(r2 / max(float(np.sum(self.target**2)), 1e-300))
 
 
+def _bracket(x0: float, factor: float, lowest: float) -> tuple[float, float]:
+    """``log`` of ``[x0 / factor, x0 * factor]`` clipped to ``[lowest, 1]`` (at least ``factor`` wide)."""
+    lo = max(lowest, x0 / factor)
+    return math.log(lo), math.log(min(1.0, max(x0 * factor, lo * factor)))
+
+
 def _search(cost, lower: float, upper: float, xtol: float) -> float:
     """Bounded Brent minimiser of ``cost`` on [lower, upper]."""
     return float(minimize_scalar(cost, bounds=(lower, upper), method="bounded", options={"xatol": xtol}).x)
@@ -105,15 +113,13 @@ def _fit_roughplastic(data: _Target, alpha0: float, ior0: float) -> MitsubaRough
     from brdfrig.fit.pbr_fit import _shared_solve
 
     def solve(alpha: float, ior: float):
-        table, internal = rough_interface(alpha, ior)
-        x = np.clip(data.cos_o, 0.0, 1.0) * (TRANSMITTANCE_RES - 1)
-        k = np.minimum(x.astype(np.int64), TRANSMITTANCE_RES - 2)
-        t_o = table[k] + (x - k) * (table[k + 1] - table[k])
-        diffuse = data.hats() @ table * (t_o / (math.pi * ior**2 * (1.0 - internal)))[:, None]
+        unit = MitsubaRoughPlastic(1.0, alpha, ior, 1.0, 0.0)  # unit linear diffuse_reflectance
+        table = rough_interface(unit.alpha, unit.eta)[0]
+        diffuse = data.hats() @ table * unit.transmittance(data.cos_o)[:, None] * unit.diffuse_amplitude()[None, :]
         spec = data.render(MitsubaRoughPlastic(0.0, alpha, ior, 1.0, 1.0))
         return _shared_solve(diffuse[:, :, None], spec, data.target, np.array([1.0]))
 
-    lo, hi = max(math.log(1e-3), math.log(alpha0 / ALPHA_FACTOR)), min(0.0, math.log(alpha0 * ALPHA_FACTOR))
+    lo, hi = _bracket(alpha0, ALPHA_FACTOR, 1e-3)
     alpha = math.exp(_search(lambda g: solve(math.exp(g), ior0)[0], lo, hi, LOG_XTOL))
     ior = _search(lambda e: solve(alpha, e)[0], *IOR_BOUNDS, IOR_XTOL)
     _, amps, w = solve(alpha, ior)
@@ -128,9 +134,7 @@ def _fit_metal(data: _Target, roughness0: float) -> MitsubaPrincipled:
         white = data.render(MitsubaPrincipled(1.0, r, 1.0))
         return _shared_solve((white - black)[:, :, None], None, data.target - black, np.array([1.0]))
 
-    f = math.sqrt(ALPHA_FACTOR)
-    r = math.exp(_search(lambda g: solve(math.exp(g))[0], math.log(max(0.03, roughness0 / f)), math.log(min(1.0, roughness0 * f)),
-                         LOG_XTOL))
+    r = math.exp(_search(lambda g: solve(math.exp(g))[0], *_bracket(roughness0, math.sqrt(ALPHA_FACTOR), 0.03), LOG_XTOL))
     _, amps, _ = solve(r)
     return MitsubaPrincipled(amps[:, 0], r, 1.0)
 

@@ -2,9 +2,10 @@
 
 The error record is written beside the export as ``OUT.error.json`` (and returned): the format, the
 source and its colour space (the RGB of the exported values: ``camera``, ``rec709`` or ``acescg``
-as the BRDF file records it, None for a measured material), the material written (its parameters), the
-approximation error in rendered radiance under the
-standard lightings (overall and per lighting), and the notes of the format writer.
+as the BRDF file records it, None for a measured material), the renderer material (its parameters), the
+approximation error of what the file holds in rendered radiance under the standard lightings (overall and
+per lighting), and the notes of the format writer (for ``mitsuba``: the BSDF type written, its Mitsuba
+parameters and every candidate type's error, each evaluated as Mitsuba evaluates it).
 """
 
 from __future__ import annotations
