@@ -89,13 +89,14 @@ def _per_channel(name: str, value, lower: float, upper: float = math.inf) -> np.
     return arr
 
 
-def _broadcast_channels(**arrays: np.ndarray) -> dict[str, np.ndarray]:
-    """Broadcast per-channel arrays of length 1 or C to a common C."""
+def _set_channels(obj, **arrays: np.ndarray) -> None:
+    """Set per-channel arrays of length 1 or C as attributes of the frozen dataclass ``obj``, broadcast to a common C."""
     sizes = {a.size for a in arrays.values()} - {1}
     if len(sizes) > 1:
         raise ValueError(f"per-channel parameters disagree on the channel count: { {k: v.size for k, v in arrays.items()} }")
     c = sizes.pop() if sizes else 1
-    return {k: np.broadcast_to(v, (c,)).copy() for k, v in arrays.items()}
+    for k, v in arrays.items():
+        object.__setattr__(obj, k, np.broadcast_to(v, (c,)).copy())
 
 
 class AnalyticBRDF:
@@ -179,9 +180,7 @@ class OrenNayar(AnalyticBRDF):
     kind = KIND_LAMBERTIAN
 
     def __post_init__(self) -> None:
-        values = _broadcast_channels(albedo=_per_channel("albedo", self.albedo, 0.0), sigma=_per_channel("sigma", self.sigma, 0.0))
-        for k, v in values.items():
-            object.__setattr__(self, k, v)
+        _set_channels(self, albedo=_per_channel("albedo", self.albedo, 0.0), sigma=_per_channel("sigma", self.sigma, 0.0))
 
     def kernel_params(self) -> np.ndarray:
         p = np.zeros((self.albedo.size, NUM_PARAMS))
@@ -213,13 +212,12 @@ class BlinnPhong(AnalyticBRDF):
     kind = KIND_BLINN_PHONG
 
     def __post_init__(self) -> None:
-        values = _broadcast_channels(
+        _set_channels(
+            self,
             diffuse=_per_channel("diffuse", self.diffuse, 0.0),
             specular=_per_channel("specular", self.specular, 0.0),
             exponent=_per_channel("exponent", self.exponent, 0.0),
         )
-        for k, v in values.items():
-            object.__setattr__(self, k, v)
 
     def kernel_params(self) -> np.ndarray:
         zero = np.zeros_like(self.diffuse)
@@ -255,15 +253,14 @@ class GGX(AnalyticBRDF):
     kind = KIND_GGX
 
     def __post_init__(self) -> None:
-        values = _broadcast_channels(
+        _set_channels(
+            self,
             alpha=_per_channel("alpha", self.alpha, 1e-4),
             f0=_per_channel("f0", self.f0, 0.0),
             diffuse=_per_channel("diffuse", self.diffuse, 0.0),
             f90=_per_channel("f90", self.f90, 0.0),
             diffuse_sigma=_per_channel("diffuse_sigma", self.diffuse_sigma, 0.0),
         )
-        for k, v in values.items():
-            object.__setattr__(self, k, v)
 
     def kernel_params(self) -> np.ndarray:
         return np.stack([self.diffuse, self.f0, self.f90, self.alpha, self.diffuse_sigma], axis=1)

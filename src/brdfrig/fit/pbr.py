@@ -60,8 +60,8 @@ from brdfrig.fit.analytic import (
     LAYERED_PARAMS,
     TABLE_SIZE,
     AnalyticBRDF,
-    _broadcast_channels,
     _per_channel,
+    _set_channels,
     charlie_sheen,
     fresnel_dielectric,
     oren_nayar_ab,
@@ -369,13 +369,12 @@ class _Layered(AnalyticBRDF):
     kind = KIND_LAYERED
 
     def __post_init__(self) -> None:
-        values = _broadcast_channels(
+        _set_channels(
+            self,
             base_color=_per_channel("base_color", self.base_color, 0.0, 1.0),
             base_diffuse_roughness=_per_channel("base_diffuse_roughness", self.base_diffuse_roughness, 0.0, SIGMA_MAX),
             fuzz_color=_per_channel("fuzz_color", self.fuzz_color, 0.0, 1.0),
         )
-        for k, v in values.items():
-            object.__setattr__(self, k, v)
         object.__setattr__(self, "specular_weight", _scalar("specular_weight", self.specular_weight, 0.0, 1.0))
         object.__setattr__(self, "specular_roughness", _scalar("specular_roughness", self.specular_roughness, math.sqrt(ALPHA_MIN), 1.0))
         object.__setattr__(self, "specular_ior", _scalar("specular_ior", self.specular_ior, *IOR_RANGE))
@@ -463,12 +462,11 @@ class ConductorBRDF(AnalyticBRDF):
     kind = KIND_CONDUCTOR
 
     def __post_init__(self) -> None:
-        values = _broadcast_channels(
+        _set_channels(
+            self,
             base_color=_per_channel("base_color", self.base_color, 0.0, 1.0),
             specular_color=_per_channel("specular_color", self.specular_color, 0.0, 1.0),
         )
-        for k, v in values.items():
-            object.__setattr__(self, k, v)
         object.__setattr__(self, "specular_roughness", _scalar("specular_roughness", self.specular_roughness, math.sqrt(ALPHA_MIN), 1.0))
         object.__setattr__(self, "specular_weight", _scalar("specular_weight", self.specular_weight, 0.0, 1.0))
 
