@@ -251,6 +251,21 @@ def _check_finite(image: np.ndarray, path: Path, what: str) -> None:
         raise InputError(f"{path}: {int(bad.sum())} NaN/inf values in {what} (first at row {idx[0]}, col {idx[1]})")
 
 
+@contextlib.contextmanager
+def _open_exr(path: Path, **options):
+    """``OpenEXR.File(path, **options)``: FileNotFoundError if there is no such file, and any error while the
+    ``with`` block reads it an InputError naming the file."""
+    import OpenEXR
+
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such EXR file")
+    try:
+        with OpenEXR.File(str(path), **options) as exr:
+            yield exr
+    except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for corrupt data
+        raise InputError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
+
+
 def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
              ) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
     """Read an EXR written by :func:`write_exr` (or any EXR with R,G,B or Y channels).
@@ -273,17 +288,10 @@ def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
         other header attributes of plain types (str, int, float) and
         ``chromaticities`` (tuple of 8 floats) under their own names.
     """
-    import OpenEXR
-
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such EXR file")
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            header = dict(exr.header())
-            planes = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
-    except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for corrupt data
-        raise InputError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
+    with _open_exr(path, separate_channels=True) as exr:
+        header = dict(exr.header())
+        planes = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
     if all(c in planes for c in _RGB):
         rgb = np.stack([planes.pop(c) for c in _RGB], axis=-1)
     elif "Y" in planes:
@@ -306,16 +314,9 @@ def read_exr(path: str | os.PathLike, *, allow_nonfinite: bool = False
 
 def read_exr_attributes(path: str | os.PathLike) -> dict:
     """The attributes of an EXR file as :func:`read_exr` returns them, reading the header only."""
-    import OpenEXR
-
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such EXR file")
-    try:
-        with OpenEXR.File(str(path), header_only=True) as exr:
-            header = dict(exr.header())
-    except Exception as exc:  # OpenEXR raises RuntimeError/OSError variants for corrupt data
-        raise InputError(f"{path}: not a readable EXR file (truncated or corrupt?): {exc}") from None
+    with _open_exr(path, header_only=True) as exr:
+        header = dict(exr.header())
     return _decode_attributes(header)
 
 
