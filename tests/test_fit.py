@@ -7,6 +7,7 @@ within the fitter's limb margin (``test_fit_scenes.relight_error``).
 
 from __future__ import annotations
 
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -19,6 +20,22 @@ from brdfrig.hdr.sphere import sphere_pixels
 from test_fit_scenes import ALBEDO, GGX_MATERIAL, make_scenes, probes, relight_error, rotations, sphere  # noqa: F401
 
 
+class _OneScene(NamedTuple):
+    fit_env: Environment
+    test_env: Environment
+    normals: np.ndarray
+    weights: np.ndarray
+    truth: object
+    scenes: list[Scene]
+
+
+def _one_scene(probes, size: int, truth, noise: float = 0.0) -> _OneScene:
+    """``truth`` rendered on a ``size`` px sphere under the fit map (one scene, relative noise ``noise``, seed 0)."""
+    fit_env, test_env = probes
+    normals, weights = sphere(size)
+    return _OneScene(fit_env, test_env, normals, weights, truth, make_scenes(truth, [fit_env], normals, weights, noise=noise))
+
+
 def _determined_choice(result):
     chosen = result.report.chosen_model
     assert result.report.chosen.determined, result.report.chosen
@@ -27,10 +44,7 @@ def _determined_choice(result):
 
 @pytest.mark.parametrize("noise", [0.0, 0.01])
 def test_one_scene_lambertian_relights_within_half_percent(probes, noise):
-    fit_env, test_env = probes
-    normals, weights = sphere(96)
-    truth = Lambertian(ALBEDO)
-    scenes = make_scenes(truth, [fit_env], normals, weights, noise=noise)
+    _, test_env, normals, _, truth, scenes = _one_scene(probes, 96, Lambertian(ALBEDO), noise)
     # l = 12: at l = 8 truncating the clamped cosine alone costs ~0.5% under this sharp map (test_fit_scenes)
     res = fit_brdf(scenes, model="diffuse", lmax=12, progress=False)
     err = relight_error(res.brdf, truth, test_env, normals)
@@ -46,10 +60,7 @@ def test_one_scene_lambertian_relights_within_half_percent(probes, noise):
 
 @pytest.mark.parametrize("noise", [0.0, 0.01])
 def test_one_scene_ggx_relights_within_eight_percent(probes, noise):
-    fit_env, test_env = probes
-    normals, weights = sphere(96)
-    truth = GGX(**GGX_MATERIAL)
-    scenes = make_scenes(truth, [fit_env], normals, weights, noise=noise)
+    _, test_env, normals, _, truth, scenes = _one_scene(probes, 96, GGX(**GGX_MATERIAL), noise)
     auto = fit_brdf(scenes, lmax=8, pmax=8, progress=False)
     chosen = _determined_choice(auto)
     assert chosen not in ("full", "full+prior")
@@ -96,10 +107,7 @@ def test_one_scene_full_plus_prior_relights_no_worse_than_its_prior(probes, nois
     # (project_to_full), the best the full model at this band limit can do with the prior alone.
     from brdfrig.fit.models import make_linear_brdf, project_to_full
 
-    fit_env, test_env = probes
-    normals, weights = sphere(48)
-    truth = GGX(**GGX_MATERIAL)
-    scenes = make_scenes(truth, [fit_env], normals, weights, noise=noise)
+    _, test_env, normals, _, truth, scenes = _one_scene(probes, 48, GGX(**GGX_MATERIAL), noise)
     res = fit_brdf(scenes, model="full+prior", lmax=6, pmax=6, progress=False)
     info = res.report.candidates["full+prior"]
     assert info.prior == "microfacet"
@@ -114,10 +122,7 @@ def test_one_scene_full_plus_prior_relights_no_worse_than_its_prior(probes, nois
 
 
 def test_joint_and_tikhonov_at_least_as_accurate_as_paper(probes):
-    fit_env, test_env = probes
-    normals, weights = sphere(48)
-    truth = GGX(**GGX_MATERIAL)
-    one = make_scenes(truth, [fit_env], normals, weights)
+    fit_env, test_env, normals, weights, truth, one = _one_scene(probes, 48, GGX(**GGX_MATERIAL))
     many = make_scenes(truth, rotations(fit_env, 5), normals, weights)
     table = []
     cases = [("diffuse", one, l) for l in range(1, 9)] + [("lobe", one, l) for l in range(1, 9)]
@@ -221,9 +226,7 @@ def test_one_scene_full_fit_streams_reduced_with_the_same_prediction(probes, mon
     space (fewer QR columns); fitted radiance, rank and unknowns match the unreduced stream."""
     import brdfrig.fit.stream
 
-    fit_env, _ = probes
-    normals, weights = sphere(96)
-    scenes = make_scenes(GGX(**GGX_MATERIAL), [fit_env], normals, weights)
+    fit_env, _, normals, _, _, scenes = _one_scene(probes, 96, GGX(**GGX_MATERIAL))
     reduced = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
     monkeypatch.setattr(brdfrig.fit.stream, "REDUCE_MAX_FRACTION", -1.0)  # never reduce
     plain = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
@@ -370,9 +373,7 @@ def test_full_plus_prior_warns_on_the_regularised_condition_number_only(probes):
     from brdfrig.fit.fitter import PRIOR_LAM_MIN
     from brdfrig.fit.select import COND_WARN
 
-    fit_env, _ = probes
-    normals, weights = sphere(48)
-    scenes = make_scenes(GGX(**GGX_MATERIAL), [fit_env], normals, weights)
+    scenes = _one_scene(probes, 48, GGX(**GGX_MATERIAL)).scenes
     plain = fit_brdf(scenes, model="full", lmax=4, pmax=4, progress=False)
     assert any("condition number" in w for w in plain.report.warnings)
     assert plain.report.candidates["full"].system.condition_number_regularised is None
