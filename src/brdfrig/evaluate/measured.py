@@ -191,9 +191,9 @@ def _renderer_sources(measured: bool):
     if not measured:
         return (groundtruth, analytic, rho)
     from brdfrig.fit import measured as measured_module
-    from brdfrig.fit import quadrature
+    from brdfrig.fit import merl, quadrature
 
-    return (groundtruth, quadrature, measured_module)
+    return (groundtruth, quadrature, measured_module, merl)
 
 
 def make_cache(directory: str | Path = DEFAULT_CACHE_DIR) -> CachedGroundTruth:

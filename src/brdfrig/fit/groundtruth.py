@@ -34,7 +34,7 @@ import numba
 import numpy as np
 
 from brdfrig.fit.rho import ggx_lobe, rho_channel
-from brdfrig.fit.measured import half_diff, table_lookup
+from brdfrig.fit.merl import half_diff, table_lookup
 from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
 
