@@ -86,9 +86,6 @@ class _Target:
             self._hats = np.concatenate(parts)
         return self._hats
 
-    def relative(self, r2: float) -> float:
-        return math.sqrt(r2 / max(float(np.sum(self.target**2)), 1e-300))
-
 
 def _bracket(x0: float, factor: float, lowest: float) -> tuple[float, float]:
     """``log`` of ``[x0 / factor, x0 * factor]`` clipped to ``[lowest, 1]`` (at least ``factor`` wide)."""
