@@ -3,7 +3,7 @@
 Each candidate (:mod:`brdfrig.export.mitsuba_bsdf`) is fitted to the reference renders
 (:func:`brdfrig.export.material.standard_scenes`) by variable projection: for fixed shape parameters the
 render is affine in the colour parameters, solved in closed form by bounded least squares
-(:func:`brdfrig.fit.pbr_fit._shared_solve`); the shape parameters are found by bounded one-dimensional
+(:func:`brdfrig.fit.pbr_fit.shared_solve`); the shape parameters are found by bounded one-dimensional
 searches (Brent) started from the renderer material's values.
 
 ================  ===============================================  ==========================================
@@ -39,6 +39,7 @@ from brdfrig.export.mitsuba_bsdf import (
     MitsubaRoughPlastic,
     rough_interface,
 )
+from brdfrig.fit.pbr_fit import shared_solve
 
 __all__ = ["FIT_STRIDE", "ALPHA_FACTOR", "IOR_BOUNDS", "fit_candidates"]
 
@@ -99,22 +100,20 @@ def _search(cost, lower: float, upper: float, xtol: float) -> float:
 
 
 def _fit_diffuse(data: _Target) -> MitsubaDiffuse:
-    from brdfrig.fit.pbr_fit import _shared_solve
 
     col = data.render(MitsubaDiffuse(1.0))
-    _, amps, _ = _shared_solve(col[:, :, None], None, data.target, np.array([1.0]))
+    _, amps, _ = shared_solve(col[:, :, None], None, data.target, np.array([1.0]))
     return MitsubaDiffuse(amps[:, 0])
 
 
 def _fit_roughplastic(data: _Target, alpha0: float, ior0: float) -> MitsubaRoughPlastic:
-    from brdfrig.fit.pbr_fit import _shared_solve
 
     def solve(alpha: float, ior: float):
         unit = MitsubaRoughPlastic(1.0, alpha, ior, 1.0, 0.0)  # unit linear diffuse_reflectance
         table = rough_interface(unit.alpha, unit.eta)[0]
         diffuse = data.hats() @ table * unit.transmittance(data.cos_o)[:, None] * unit.diffuse_amplitude()[None, :]
         spec = data.render(MitsubaRoughPlastic(0.0, alpha, ior, 1.0, 1.0))
-        return _shared_solve(diffuse[:, :, None], spec, data.target, np.array([1.0]))
+        return shared_solve(diffuse[:, :, None], spec, data.target, np.array([1.0]))
 
     lo, hi = _bracket(alpha0, ALPHA_FACTOR, 1e-3)
     alpha = math.exp(_search(lambda g: solve(math.exp(g), ior0)[0], lo, hi, LOG_XTOL))
@@ -124,12 +123,11 @@ def _fit_roughplastic(data: _Target, alpha0: float, ior0: float) -> MitsubaRough
 
 
 def _fit_metal(data: _Target, roughness0: float) -> MitsubaPrincipled:
-    from brdfrig.fit.pbr_fit import _shared_solve
 
     def solve(r: float):
         black = data.render(MitsubaPrincipled(0.0, r, 1.0))
         white = data.render(MitsubaPrincipled(1.0, r, 1.0))
-        return _shared_solve((white - black)[:, :, None], None, data.target - black, np.array([1.0]))
+        return shared_solve((white - black)[:, :, None], None, data.target - black, np.array([1.0]))
 
     r = math.exp(_search(lambda g: solve(math.exp(g))[0], *_bracket(roughness0, math.sqrt(ALPHA_FACTOR), 0.03), LOG_XTOL))
     _, amps, _ = solve(r)

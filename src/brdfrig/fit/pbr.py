@@ -12,9 +12,9 @@ Three families, each energy-conserving (directional albedo <= 1 at every angle) 
   ``t = 1 - E_coat`` is the coating's transmission (one minus the directional albedo of its
   lobe at ``w = 1``, tabulated) and ``N = 2 int_0^1 t(mu) mu dmu`` normalises the base so that a
   Lambertian base of colour 1 returns exactly what the coating transmits: albedo
-  ``w E_coat + base_color (1 - E_coat) <= 1``.  This is the layering of Mitsuba's
-  ``roughplastic`` (which divides by ``eta^2 (1 - F_dr,internal)``, equal to ``N`` for a lossless
-  interface) and of OpenPBR's albedo scaling.  ``specular_weight`` ``w`` in [0, 1] scales the
+  ``w E_coat + base_color (1 - E_coat) <= 1``: OpenPBR's albedo scaling.  Mitsuba's ``roughplastic``
+  layers differently (its rough interface loses energy to shadowing, and it divides by
+  ``eta^2 (1 - F_dr,internal)``): its own evaluation is :mod:`brdfrig.export.mitsuba_bsdf`.  ``specular_weight`` ``w`` in [0, 1] scales the
   coating's reflection; the transmission is that of the unscaled coating (the rest is absorbed),
   so ``w`` enters linearly.
 - ``conductor`` (:class:`ConductorBRDF`): GGX with OpenPBR's F82-tint Fresnel

@@ -82,7 +82,7 @@ from brdfrig.fit.pbr import (
 )
 from brdfrig.fit.scene import Environment, Scene
 
-__all__ = ["FAMILIES", "fit_pbr", "fit_dielectric", "fit_conductor", "fit_sheen", "fresnel_coefficients"]
+__all__ = ["FAMILIES", "fit_pbr", "fit_dielectric", "fit_conductor", "fit_sheen", "fresnel_coefficients", "shared_solve"]
 
 FAMILIES = ("dielectric", "conductor", "sheen")
 DEFAULT_MAX_PIXELS = 2000
@@ -212,7 +212,7 @@ class _Data:
         return np.concatenate([render_basis(KIND_LAYERED, row, n, e)[:, :, 0] for n, e in zip(self.normals, self.envs)]) * self.sqrt_w[:, None]
 
 
-def _shared_solve(per_channel: np.ndarray, shared: np.ndarray | None, target: np.ndarray, upper: np.ndarray):
+def shared_solve(per_channel: np.ndarray, shared: np.ndarray | None, target: np.ndarray, upper: np.ndarray):
     """Least squares over channels with per-channel columns (N, C, K) and one shared column (N, C) or None.
 
     Returns (squared residual, per-channel amplitudes (C, K), shared amplitude).
@@ -282,7 +282,7 @@ class _Dielectric:
         if self.fuzz:
             cols = np.concatenate([cols, fuzz_col[:, :, None]], axis=2)
             upper = np.r_[upper, max(fuzz_weight, 1e-12)]
-        return _shared_solve(cols, spec, d.target, upper)
+        return shared_solve(cols, spec, d.target, upper)
 
     def profile_ior(self, alpha: float, fuzz_alpha: float, fuzz_col=None) -> tuple[float, float]:
         """(cost, best IOR) at one alpha: IOR fixed, or a bounded Brent search (cheap: no renders)."""
