@@ -162,3 +162,76 @@ def test_a_session_in_use_is_refused_by_every_other_writer(tmp_path):
     assert b"session paused" in seen + holder.stdout.read()
     r = brdfrig("capture", "resume", out, "--yes", "--no-fit", "--no-progress")  # the lock died with its holder
     assert r.returncode == 0 and "session complete" in r.stdout, r.stderr
+
+
+HOLD_AT_FIT = """
+import contextlib, sys
+
+from brdfrig.cli.main import main
+from brdfrig.session import refit, store
+
+real_locked, paused = store.SessionStore.locked, []
+
+
+def pause(where):
+    if not paused:
+        paused.append(where)
+        print("PAUSED", where, flush=True)
+        sys.stdin.readline()
+
+
+@contextlib.contextmanager
+def locked(self):
+    # the first request for the writer lock once the shooting has ended is the fit stage's: pause before it
+    if any(r.get("event") == "stop" and r.get("status") == "complete" for r in self.journal()):
+        pause("lock request after shooting")
+    with real_locked(self) as s:
+        yield s
+
+
+def fit(session_dir, *args, **kwargs):  # the fit proper: pause in it, then skip the 50 s fit
+    pause("fit")
+    return refit.SessionRefit(str(session_dir), "(fit skipped by the test)")
+
+
+store.SessionStore.locked = locked
+refit.refit_session = fit
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_the_lock_is_held_from_shooting_through_the_fit(tmp_path):
+    """A real `capture run` paused at the start of its fit stage: a concurrent resume and refit are refused."""
+    import os
+    import select
+    import time
+
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(TINY)
+    out = tmp_path / "s"
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_AT_FIT, "capture", "run", str(plan), "--out", str(out),
+                               "--yes", "--no-progress"], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE)
+    try:
+        seen, deadline = b"", time.monotonic() + 90
+        while b"PAUSED" not in seen:
+            ready, _, _ = select.select([holder.stdout], [], [], max(0.0, deadline - time.monotonic()))
+            assert ready and holder.poll() is None, (seen, holder.stderr.read() if holder.poll() is not None else "")
+            seen += os.read(holder.stdout.fileno(), 4096)
+        assert '"status": "complete"' in (out / "journal.jsonl").read_text().splitlines()[-1]  # shooting is over
+        before = _snapshot(out)
+        expected = f"session {out} in use by PID {holder.pid}: wait for it to finish (nothing was changed)"
+        for command in (("capture", "resume", out, "--yes", "--no-fit", "--no-progress"),
+                        ("refit", out, "--no-progress")):
+            r = brdfrig(*command)
+            assert (r.returncode, r.stderr.strip().splitlines()) == (2, [f"brdfrig {command[0]}: error: {expected}"]), \
+                (command, seen, r.stdout)
+            assert _snapshot(out) == before, command  # nothing written
+        holder.stdin.write(b"\n")
+        holder.stdin.close()
+        assert holder.wait(timeout=60) == 0, holder.stderr.read()
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+            holder.wait()
+    assert b"results in (fit skipped by the test)" in holder.stdout.read()

@@ -5,8 +5,9 @@ requested model needs) and shoots it into a new session directory; `resume`
 finishes a stopped or killed session without reshooting what is stored and
 verified.  When the session is complete both run the pipeline (merge, probe,
 fit, BRDF files and figures) unless `--no-fit`.  Both hold the session's
-writer lock: a session in use by another process is refused ("session DIR in
-use by PID N", exit 2) before anything is written.
+writer lock from before the first write until the fit ends: a session in use
+by another process is refused ("session DIR in use by PID N", exit 2) before
+anything is written.
 """
 
 from __future__ import annotations
@@ -43,7 +44,6 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from brdfrig.devices import open_rig, preflight
     from brdfrig.session.runner import resume_session, run_session
-    from brdfrig.session.store import SessionStore
 
     prompt = None if args.yes else input
     progress = not args.no_progress
@@ -63,25 +63,24 @@ def run(args) -> int:
             echo(describe_plan(build_plan(config)))
             return 0
         preflight(config)
-        status, store = run_session(config, args.out, rig_factory=open_rig, prompt=prompt, progress=progress,
-                                    echo=echo)
-        with store.locked():
-            return _after_shooting(args, status, store, echo)
-    with SessionStore.open(args.dir).locked():
-        status, store = resume_session(args.dir, rig_factory=open_rig, prompt=prompt, progress=progress, echo=echo)
-        return _after_shooting(args, status, store, echo)
+        run_session(config, args.out, rig_factory=open_rig, prompt=prompt, progress=progress, echo=echo,
+                    then=lambda status, store: _after_shooting(args, status, store, echo))
+        return 0
+    resume_session(args.dir, rig_factory=open_rig, prompt=prompt, progress=progress, echo=echo,
+                   then=lambda status, store: _after_shooting(args, status, store, echo))
+    return 0
 
 
-def _after_shooting(args, status: str, store, echo) -> int:
-    """Report the shooting's outcome and fit a complete session (the caller holds the writer lock)."""
+def _after_shooting(args, status: str, store, echo) -> None:
+    """Report the shooting's outcome and fit a complete session (run as ``then``: the shooting's writer lock is held)."""
     progress = not args.no_progress
     if status != "complete":
         echo(f"session paused at an operator prompt; continue with `brdfrig capture resume {store.root}`")
-        return 0
+        return
     echo(f"session complete: {len(store.files)} files in {store.root} (manifest {store.root / 'manifest.json'})")
     if args.no_fit:
         echo(f"fit it with `brdfrig refit {store.root}`")
-        return 0
+        return
     from brdfrig.cli.library import open_library
     from brdfrig.errors import on_disk_full
     from brdfrig.session.refit import record, refit_session
@@ -91,7 +90,6 @@ def _after_shooting(args, status: str, store, echo) -> int:
     with open_library(args) as library:
         record(library, refit)
     echo(f"results in {refit.results_dir}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -14,7 +14,8 @@ and prompts; answering ``q`` stops it, to be resumed later).  Ctrl-C stops the
 table, records an ``interrupted`` stop in the journal and re-raises.
 
 A run or resume holds the session's writer lock (``SessionStore.locked``) from
-before its first write to its last; after every table move it waits the plan's
+before its first write to its last, including the fit that follows the shooting
+(``then``); after every table move it waits the plan's
 ``settle_s``; every retry, resynchronisation and re-approach of the turntable
 driver is a journal record (``turntable_*`` events).
 """
@@ -239,7 +240,8 @@ def _execute(store: SessionStore, plan: Plan, *, prompt, progress, rig_factory, 
 
 def run_session(config: SessionConfig, out_dir: str | Path, *, rig_factory, prompt: Callable[[str], str] | None = input,
                 progress: bool = True, echo: Callable[[str], None] | None = None,
-                sleep: Callable[[float], None] = time.sleep) -> tuple[str, SessionStore]:
+                sleep: Callable[[float], None] = time.sleep,
+                then: Callable[[str, SessionStore], object] | None = None) -> tuple[str, SessionStore]:
     """Create the session directory ``out_dir`` and run the whole plan under the session's writer lock.
 
     Returns ``(status, store)`` with status ``"complete"`` or ``"paused"`` (operator
@@ -249,6 +251,8 @@ def run_session(config: SessionConfig, out_dir: str | Path, *, rig_factory, prom
     plan's ``settle_s`` after each move.  ``rig_factory(config, journal=...)`` is a context
     manager yielding ``(turntable, camera)`` (:func:`brdfrig.devices.open_rig` for the
     configured devices; its :func:`brdfrig.devices.preflight` checks what it can first).
+    ``then(status, store)``, if given, runs once the shooting ends, still under the
+    same lock (the capture command fits there, so no other writer gets in between).
     """
     plan = build_plan(config)
     if echo:
@@ -256,21 +260,28 @@ def run_session(config: SessionConfig, out_dir: str | Path, *, rig_factory, prom
     store = SessionStore.create(out_dir, config.to_dict())
     with store.locked():
         store.append("run_start", resumed=False)
-        return _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory, sleep=sleep), store
+        status = _execute(store, plan, prompt=prompt, progress=progress, rig_factory=rig_factory, sleep=sleep)
+        if then is not None:
+            then(status, store)
+        return status, store
 
 
 def resume_session(session_dir: str | Path, *, rig_factory, prompt: Callable[[str], str] | None = input,
                    progress: bool = True, echo: Callable[[str], None] | None = None,
-                   sleep: Callable[[float], None] = time.sleep) -> tuple[str, SessionStore]:
+                   sleep: Callable[[float], None] = time.sleep,
+                   then: Callable[[str, SessionStore], object] | None = None) -> tuple[str, SessionStore]:
     """Finish a stopped or killed session: verify what is stored, set aside what fails, shoot the rest.
 
     Holds the session's writer lock from before its first write (a session in
-    use by another process raises ``StoreError`` and nothing is changed).
-    Returns ``(status, store)`` as :func:`run_session`.
+    use by another process raises ``StoreError`` and nothing is changed) until
+    ``then`` returns.  Returns ``(status, store)`` and calls ``then`` as :func:`run_session`.
     """
     store = SessionStore.open(session_dir)
     with store.locked():
-        return _resume(store, prompt=prompt, progress=progress, rig_factory=rig_factory, echo=echo, sleep=sleep)
+        status, _ = _resume(store, prompt=prompt, progress=progress, rig_factory=rig_factory, echo=echo, sleep=sleep)
+        if then is not None:
+            then(status, store)
+        return status, store
 
 
 def _resume(store: SessionStore, *, prompt, progress, rig_factory, echo, sleep) -> tuple[str, SessionStore]:
