@@ -190,7 +190,8 @@ def test_turntable_retries_are_journalled_in_the_session(tmp_path):
     def factory(cfg, journal=None):
         with GrblSimulator(steps_per_degree=80.0, backlash_deg=0.5, max_rate_deg_s=1e5, homing_time_s=0.002,
                            tick_s=0.001) as sim:
-            with GrblTurntable(sim.port, 115200, 80.0, 0.5, journal=journal, **SOAK_DRIVER_TIMING) as table:
+            with GrblTurntable(sim.port, 115200, 80.0, 0.5, journal=journal, settled=sim.settled,
+                               **SOAK_DRIVER_TIMING) as table:
                 table.home()
                 table.move_to(300.0)  # the first scene angle, 0, is then approached from below
                 sim.rewrite_command("G90 G0 X0.000000", "G90 G0 X900.000000", drop_ok=True)

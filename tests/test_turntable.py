@@ -16,7 +16,8 @@ from brdfrig.sim.soak import SOAK_DRIVER_TIMING, fault_soak
 SPD = 80.0  # steps per degree: 1.8 deg motor, 16 microsteps, 1:2 belt... (0.0125 deg per step)
 STEP = 1.0 / SPD
 
-# Driver timing for a fast simulator: every wait is short so that faults cost milliseconds.
+# Driver timing for a fast simulator: every wait is short so that faults cost milliseconds; with the simulator's
+# ``settled`` (passed wherever a simulator serves) a short reply deadline never fires while a reply is on its way.
 FAST = SOAK_DRIVER_TIMING
 # Generous deadlines for tests that inject no faults (a loaded CI machine must not cause spurious timeouts).
 SAFE = {**FAST, "reply_timeout_s": 1.0, "stall_timeout_s": 1.0, "move_margin_s": 2.0, "connect_timeout_s": 2.0,
@@ -105,6 +106,21 @@ def test_random_faults_never_yield_a_wrong_confirmed_position(seed):
     assert result.journal["turntable_resync"] > 0 and result.journal["turntable_reapproach"] > 0
 
 
+def test_late_replies_do_not_change_the_exchange():
+    """Replies held back 40 ms (beyond the 15 ms reply timeout: a loaded machine) on 5% of the lines.
+
+    The seed must replay the same run: the same faults at the same schedule indices (any byte sent
+    differently shifts them), the same outcomes and journal (bar how many looks a reconnecting port
+    took to reappear, which is real time), no wrong confirmation.
+    """
+    prompt, late = fault_soak(60, 21), fault_soak(60, 21, late_replies=0.05)
+    assert len(prompt.fault_log) >= 60 and prompt.fault_log == late.fault_log
+    for run in (prompt, late):
+        del run.journal["turntable_reconnect"]
+    assert prompt.outcomes == late.outcomes and prompt.journal == late.journal
+    assert prompt.wrong == late.wrong == [] and prompt.left_moving == late.left_moving == 0
+
+
 def _bytes_script(sim: GrblSimulator) -> tuple[bytes, list]:
     """Send a fixed byte sequence to ``sim`` (reset, settings, homing, moves, status polls); return what came back."""
     import serial
@@ -144,7 +160,7 @@ def test_resent_final_approach_is_approached_again_from_below(target, noise):
     the motor reads the target.  The driver must approach again from below.
     """
     events = []
-    with fast_sim(tick_s=0.001) as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, **FAST,
+    with fast_sim(tick_s=0.001) as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, settled=sim.settled, **FAST,
                                                      journal=lambda e, **f: events.append((e, f))) as table:
         table.home()
         table.move_to(100.0)
@@ -164,7 +180,8 @@ def test_garbled_home_after_power_up_is_not_confirmed():
     ``[MSG:Caution: Unlocked]`` line lost must not be taken for a homing cycle (issue 11, 1b)."""
     events = []
     with fast_sim(tick_s=0.001) as sim:
-        table = GrblTurntable(sim.port, 115200, SPD, 0.5, **FAST, journal=lambda e, **f: events.append((e, f)))
+        table = GrblTurntable(sim.port, 115200, SPD, 0.5, settled=sim.settled, **FAST,
+                              journal=lambda e, **f: events.append((e, f)))
         table.connect()
         table.home()
         table.move_to(65.85)
@@ -194,7 +211,8 @@ def test_the_port_is_opened_exclusively():
 
 @pytest.mark.parametrize("fault, error", [("stall", DeviceTimeout), ("alarm", DeviceRefused)])
 def test_injected_motion_fault_stops_the_table_and_forgets_the_position(fault, error):
-    with fast_sim(max_rate_deg_s=2000.0) as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, **FAST) as table:
+    with fast_sim(max_rate_deg_s=2000.0) as sim, \
+            GrblTurntable(sim.port, 115200, SPD, 0.5, settled=sim.settled, **FAST) as table:
         table.home()
         sim.inject(fault)
         with pytest.raises(error):
@@ -208,7 +226,7 @@ def test_injected_motion_fault_stops_the_table_and_forgets_the_position(fault, e
 
 
 def test_lost_and_garbled_replies_are_retried_transparently():
-    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, **FAST) as table:
+    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, 0.5, settled=sim.settled, **FAST) as table:
         table.home()
         for fault in ("drop", "garble", "drop", "garble", "slow"):
             sim.inject(fault)
@@ -218,7 +236,7 @@ def test_lost_and_garbled_replies_are_retried_transparently():
 
 def test_disconnect_during_move_then_reconnect_by_homing():
     with fast_sim(max_rate_deg_s=2000.0, reconnect_delay_s=0.05) as sim:
-        table = GrblTurntable(sim.port, 115200, SPD, 0.5, **FAST)
+        table = GrblTurntable(sim.port, 115200, SPD, 0.5, settled=sim.settled, **FAST)
         table.connect()
         table.home()
         sim.inject("disconnect")
@@ -241,14 +259,14 @@ def test_wrong_port_names_the_setting():
 def test_wrong_baud_names_the_setting_and_leaves_the_table_stopped():
     with fast_sim(baud=115200) as sim:
         with pytest.raises(DeviceNotFound, match="'baud'"):
-            GrblTurntable(sim.port, 9600, SPD, **FAST).connect()
+            GrblTurntable(sim.port, 9600, SPD, settled=sim.settled, **FAST).connect()
         assert not sim.is_moving
 
 
 def test_a_device_answering_something_else_is_named():
     with fast_sim(foreign_reply="echo:Unknown command") as sim:
         with pytest.raises(DeviceNotFound, match="not a GRBL 1.1 controller.*Unknown command"):
-            GrblTurntable(sim.port, 115200, SPD, **FAST).connect()
+            GrblTurntable(sim.port, 115200, SPD, settled=sim.settled, **FAST).connect()
 
 
 def test_silent_port_times_out_naming_the_port():

@@ -37,14 +37,14 @@ def open_rig(config: SessionConfig, journal: Callable[..., object] | None = None
             from brdfrig.sim.grbl import GrblSimulator
 
             sim = stack.enter_context(GrblSimulator(**_sim_table_options(config)))
-            port, table_state = sim.port, sim
+            port, table_state, settled = sim.port, sim, sim.settled
         else:
-            port = tt_cfg.port
+            port, settled = tt_cfg.port, None
         turntable = None
         if tt_cfg.backend != "none":
             turntable = stack.enter_context(
                 GrblTurntable(port, tt_cfg.baud, tt_cfg.steps_per_degree, tt_cfg.backlash_deg,
-                              homing_timeout_s=tt_cfg.timeout_s, journal=journal)
+                              homing_timeout_s=tt_cfg.timeout_s, journal=journal, settled=settled)
             )
             turntable.home()
         if cam_cfg.backend == "sim":

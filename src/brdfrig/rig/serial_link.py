@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import threading
 import time
+from typing import Callable
 
 import serial
 
@@ -31,6 +32,15 @@ class SerialLink:
         Baud rate, positive.
     eol : bytes
         Line terminator appended by :meth:`write_line`.
+    settled : callable, optional
+        ``settled()`` is True when the device has read and answered every byte
+        sent to it (a simulator can tell; real hardware cannot: None).  When
+        given, a deadline that passes while the device is still busy does not
+        count: the read goes on until the device has settled, so a reply that is
+        merely late (a loaded computer) is never taken for a lost one, up to
+        ``silence_s`` past the deadline (the device stopped answering).
+    silence_s : float
+        With ``settled``: how long past a deadline a busy device may take, in seconds.
 
     Notes
     -----
@@ -42,7 +52,8 @@ class SerialLink:
     :class:`DeviceTimeout` (no complete line before the deadline).
     """
 
-    def __init__(self, port: str, baud: int, *, eol: bytes = b"\n") -> None:
+    def __init__(self, port: str, baud: int, *, eol: bytes = b"\n", settled: Callable[[], bool] | None = None,
+                 silence_s: float = 30.0) -> None:
         if not isinstance(port, str) or not port:
             raise ValueError(f"port must be a serial device path, got {port!r}")
         if not isinstance(baud, int) or isinstance(baud, bool) or baud <= 0:
@@ -50,6 +61,8 @@ class SerialLink:
         self.port = port
         self.baud = baud
         self.eol = eol
+        self.settled = settled
+        self.silence_s = silence_s
         self.lock = threading.RLock()
         self._serial: serial.Serial | None = None
         self._buffer = bytearray()
@@ -132,34 +145,55 @@ class SerialLink:
                     nl = self._buffer.find(b"\n")
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    raise DeviceTimeout(f"no reply on {self.port!r} in time")
-                try:
-                    port.timeout = remaining
-                    chunk = port.read(max(1, port.in_waiting))
-                except (serial.SerialException, OSError) as exc:
-                    self.close()
-                    raise DeviceDisconnected(f"lost serial port {self.port!r} while reading: {exc}") from exc
-                self._buffer += chunk
+                    if self._nothing_more(deadline):
+                        raise DeviceTimeout(f"no reply on {self.port!r} in time")
+                    remaining = 0.005  # the device is still busy: its reply is late, not lost
+                self._buffer += self._read(port, remaining, "reading")
+
+    def _read(self, port: serial.Serial, timeout: float, doing: str) -> bytes:
+        """What arrives within ``timeout`` seconds (at least one byte unless it runs out)."""
+        try:
+            port.timeout = timeout
+            return port.read(max(1, port.in_waiting))
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            raise DeviceDisconnected(f"lost serial port {self.port!r} while {doing}: {exc}") from exc
+
+    def _nothing_more(self, deadline: float) -> bool:
+        """At or past ``deadline`` with nothing buffered: may the wait end?
+
+        Without ``settled``, yes.  With it, only once the device has settled and
+        nothing arrived meanwhile (a last non-blocking look), or ``silence_s``
+        after the deadline.
+        """
+        if self.settled is None or time.monotonic() > deadline + self.silence_s:
+            return True
+        if not self.settled():
+            return False
+        late = self._read(self._port(), 0, "reading")
+        self._buffer += late
+        return not late
 
     def drain(self, quiet_s: float, max_s: float) -> bytes:
         """Discard input until the line has been quiet for ``quiet_s`` (at most ``max_s``); return what was dropped.
 
         Used to resynchronise after garbage or a lost reply: whatever the device
-        was still sending belongs to the exchange being abandoned.
+        was still sending belongs to the exchange being abandoned.  With
+        ``settled``, quiet means the device has settled with nothing in flight
+        (however long that takes on a loaded computer, up to ``max_s + silence_s``).
         """
         with self.lock:
             port = self._port()
             dropped = bytearray(self._buffer)
             self._buffer.clear()
             end = time.monotonic() + max_s
-            try:
-                while time.monotonic() < end:
-                    port.timeout = quiet_s
-                    chunk = port.read(max(1, port.in_waiting))
+            while time.monotonic() < end or (self.settled is not None and time.monotonic() < end + self.silence_s):
+                chunk = self._read(port, quiet_s if self.settled is None else 0.005, "resynchronising")
+                if chunk:
+                    dropped += chunk
+                elif self.settled is None or self.settled():
+                    chunk = self._read(port, 0, "resynchronising")
                     if not chunk:
                         break
                     dropped += chunk
-            except (serial.SerialException, OSError) as exc:
-                self.close()
-                raise DeviceDisconnected(f"lost serial port {self.port!r} while resynchronising: {exc}") from exc
             return bytes(dropped)

@@ -10,6 +10,12 @@ The driver speaks the dialect documented in :mod:`brdfrig.rig.grbl_protocol` ove
   trigger a resynchronisation (drain until quiet, fresh status report) and a
   bounded number of re-sends, which is safe because every command it sends is
   idempotent (absolute moves, homing, settings writes);
+* no confirmation rests on timing: a reply taken for lost that was merely late
+  costs a resend and a re-approach, never a wrong angle.  Waits for motion and
+  homing are counted in status polls; a device that can say when it has
+  answered everything (``settled``, the simulator) makes every reply deadline
+  mean "the device stopped answering", so the exchange is the same however
+  loaded the computer is;
 * backlash is compensated by approaching every target from the same (+) side:
   a move that would end going - first goes ``backlash_deg`` (plus a margin)
   below the target.  The side is known only after a *clean* final move: its
@@ -129,6 +135,11 @@ class GrblTurntable:
         and re-approach (events ``turntable_resync``, ``turntable_status_retry``,
         ``turntable_reapproach``, ``turntable_home_retry``,
         ``turntable_reconnect``), e.g. ``SessionStore.append``.
+    settled : callable, optional
+        ``settled()`` is True once the device has answered every byte sent
+        (:meth:`brdfrig.sim.grbl.GrblSimulator.settled`); see
+        :class:`brdfrig.rig.serial_link.SerialLink`.  None for real hardware,
+        where ``reply_timeout_s`` alone tells a lost reply.
     """
 
     def __init__(
@@ -149,6 +160,7 @@ class GrblTurntable:
         reconnect_delay_s: float = 0.5,
         resync_quiet_s: float = 0.05,
         journal: Callable[..., object] | None = None,
+        settled: Callable[[], bool] | None = None,
     ) -> None:
         self.steps_per_degree = _positive("steps_per_degree", steps_per_degree)
         if isinstance(backlash_deg, bool) or not isinstance(backlash_deg, (int, float)) or not (
@@ -171,7 +183,7 @@ class GrblTurntable:
                 raise ValueError(f"{name} must be an integer >= {0 if name == 'retries' else 1}, got {value!r}")
         self.retries = retries
         self.reconnect_attempts = reconnect_attempts
-        self.link = SerialLink(port, baud)
+        self.link = SerialLink(port, baud, settled=settled)
         self.journal = journal
         self.firmware = ""  # the controller's greeting, e.g. "Grbl 1.1h ['$' for help]"
         self.settings: dict[int, float] = {}  # the controller's $$ settings as last read (number -> value)
@@ -412,30 +424,32 @@ class GrblTurntable:
         before any ``Home`` one mean no cycle started (GRBL defers reports
         during a cycle; the first may predate the line).  Raises
         ``DeviceRefused`` on a homing alarm or a refusal, ``DeviceTimeout``
-        when a seen cycle outlasts ``homing_timeout_s``.
+        when a seen cycle outlasts ``homing_timeout_s`` (counted in polls, as
+        :meth:`_waited`).  A status report counts as lost only when the link's
+        reply deadline says so.
         """
         self.link.write_line("$H")
-        now = time.monotonic()
-        deadline, next_poll, asked = now + self.homing_timeout_s, now, None
+        t0 = next_poll = time.monotonic()
+        asked, polls = None, 0
         saw_home = unlocked = ended = False
         why, other_reports = None, 0
         while not ended and why is None:
             now = time.monotonic()
-            if now > deadline:
+            if asked is None and self._waited(polls, now - t0, self.homing_timeout_s):
                 if saw_home:
                     raise DeviceTimeout(f"homing did not finish within {self.homing_timeout_s:g} s (setting 'timeout_s')")
                 why = f"no reply to $H within {self.homing_timeout_s:g} s"
                 break
-            if asked is not None and now > asked + self.reply_timeout_s:
-                asked = None  # that report was lost: ask again
-                self._note("turntable_status_retry", reason="no status report during homing")
             if asked is None and now >= next_poll:  # one status request outstanding at a time
                 self.link.write(gp.STATUS_QUERY)
-                asked, next_poll = now, now + self.poll_interval_s
-            wake = asked + self.reply_timeout_s if asked is not None else next_poll
+                asked, next_poll, polls = now, now + self.poll_interval_s, polls + 1
             try:
-                reply = gp.parse_reply(self.link.readline(min(wake, deadline)))
+                reply = gp.parse_reply(self.link.readline(asked + self.reply_timeout_s if asked is not None
+                                                          else next_poll))
             except DeviceTimeout:
+                if asked is not None:
+                    asked = None  # that report was lost: ask again
+                    self._note("turntable_status_retry", reason="no status report during homing")
                 continue
             if reply.kind == "status":
                 asked = None

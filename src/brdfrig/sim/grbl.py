@@ -158,6 +158,12 @@ class GrblSimulator:
     tick_s : float, optional
         Virtual clock: mechanics advance this many seconds per status report
         received, and only then.  ``None`` (default) runs them in real time.
+    late_replies : float
+        Fraction of reply lines held back ``late_reply_s`` before they are sent
+        (chosen by the schedule, stream ``"late"``; not a fault: the line arrives
+        intact), as a device slowed down by a loaded computer.
+    late_reply_s : float
+        How long a late reply is held back, in seconds.
 
     Attributes
     ----------
@@ -187,6 +193,8 @@ class GrblSimulator:
         start_angle_deg: float = 37.0,
         seed: int = 0,
         tick_s: float | None = None,
+        late_replies: float = 0.0,
+        late_reply_s: float = 0.04,
     ) -> None:
         _check_mechanics(steps_per_degree, backlash_deg, max_rate_deg_s, tick_s)
         self._baud_flag = getattr(termios, f"B{baud}", None)
@@ -205,6 +213,7 @@ class GrblSimulator:
         self.fault_log: list[tuple[str, object]] = []
         self.seed = seed
         self.tick_s = tick_s
+        self.late_replies, self.late_reply_s = float(late_replies), float(late_reply_s)
         self._vclock = 0.0
         self._noise_rng = random.Random(seed)  # wrong-baud noise: content only, never a fault decision
         self._epoch = 0  # command lines + reset bytes received
@@ -330,6 +339,18 @@ class GrblSimulator:
             self._advance(self._now())
             return self.state in ("Run", "Home")
 
+    def settled(self) -> bool:
+        """True when every byte a client sent has been read and answered (replies the mechanics defer aside).
+
+        A driver's reply deadline may rely on it (``GrblTurntable(settled=...)``):
+        past it, a reply not received is one the firmware never sent or the line lost.
+        """
+        with self._lock:  # the serving thread reads and answers a chunk under this lock
+            if self._master is None:
+                return True
+            ready, _, _ = select.select([self._master], [], [], 0)
+            return not ready
+
     @property
     def connected(self) -> bool:
         with self._lock:
@@ -428,6 +449,8 @@ class GrblSimulator:
                 return
             if kind == "garble":
                 data = self._garble(data, rng)
+        if self.late_replies and self._schedule("late", index).random() < self.late_replies:
+            time.sleep(self.late_reply_s)  # holding the lock: the client's settled() waits for this line too
         self._write(data)
 
     def _write(self, data: bytes) -> None:

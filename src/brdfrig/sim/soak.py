@@ -2,8 +2,9 @@
 
 :func:`fault_soak` drives :class:`brdfrig.rig.turntable.GrblTurntable` to random
 targets while :class:`brdfrig.sim.grbl.GrblSimulator` injects faults from its
-seeded, count-indexed schedule (virtual clock, so the schedule does not depend
-on the machine's load), re-homing after every error, until ``n_faults`` faults
+seeded, count-indexed schedule (virtual clock, and the driver's reply
+deadlines wait for the simulator to settle, so neither the schedule nor the
+exchange depends on the machine's load), re-homing after every error, until ``n_faults`` faults
 have been injected.  After every confirmation (a move's return value, a
 home, a position still claimed after an error) it compares the claim with the
 simulator's physical table angle: the driver's promise is that no claim is
@@ -22,21 +23,18 @@ from brdfrig.rig.errors import RigError
 from brdfrig.rig.turntable import GrblTurntable
 from brdfrig.sim.grbl import FaultRates, GrblSimulator
 
-__all__ = ["SOAK_RATES", "SOAK_DRIVER_TIMING", "REPLAY_DRIVER_TIMING", "SoakResult", "fault_soak"]
+__all__ = ["SOAK_RATES", "SOAK_DRIVER_TIMING", "SoakResult", "fault_soak"]
 
 #: Fault probabilities of the soak: every kind the simulator knows, often.
 SOAK_RATES = FaultRates(drop=0.06, garble=0.06, stall=0.1, slow=0.1, disconnect=0.06, alarm=0.1)
 
-#: Driver timing for the fast simulator: every wait is short so that a fault costs milliseconds.
+#: Driver timing for the fast simulator: every wait is short so that a fault costs milliseconds.  With the
+#: simulator's ``settled`` the reply deadlines pass only once it has answered everything, and motion and homing
+#: waits are counted in polls, so the exchange does not depend on how loaded the machine is.  Only waiting for a
+#: disconnected port to reappear is real time (up to 50 x 20 ms; how many looks it takes is journalled).
 SOAK_DRIVER_TIMING = dict(poll_interval_s=0.001, reply_timeout_s=0.015, stall_timeout_s=0.015, move_margin_s=0.1,
-                          resync_quiet_s=0.005, reconnect_delay_s=0.02, reconnect_attempts=5,
+                          resync_quiet_s=0.005, reconnect_delay_s=0.02, reconnect_attempts=50,
                           connect_timeout_s=0.1, homing_timeout_s=0.1)
-
-#: Generous driver timing for replaying a seed exactly on a loaded machine (a reply later than
-#: the short timeouts above is taken for lost, which changes the exchange); about 10x slower.
-REPLAY_DRIVER_TIMING = {**SOAK_DRIVER_TIMING, "reply_timeout_s": 0.25, "resync_quiet_s": 0.05,
-                        "stall_timeout_s": 0.05, "connect_timeout_s": 1.0, "homing_timeout_s": 1.0,
-                        "move_margin_s": 1.0}
 
 
 @dataclass
@@ -64,11 +62,12 @@ class SoakResult:
 
 def fault_soak(n_faults: int, seed: int, *, steps_per_degree: float = 80.0, backlash_deg: float = 0.5,
                rates: FaultRates = SOAK_RATES, max_homing_attempts: int = 30,
-               timing: dict = SOAK_DRIVER_TIMING) -> SoakResult:
+               timing: dict = SOAK_DRIVER_TIMING, late_replies: float = 0.0) -> SoakResult:
     """Run random moves until the simulator has injected ``n_faults`` faults; see the module docstring.
 
     ``seed`` fixes the targets and the simulator's fault schedule; ``timing`` is
-    the driver's (``REPLAY_DRIVER_TIMING`` to replay a seed exactly under load).
+    the driver's; ``late_replies`` the fraction of reply lines the simulator holds
+    back (``GrblSimulator(late_replies=...)``), which must not change the run.
     Raises ``RuntimeError`` if the table cannot be homed again in ``max_homing_attempts``.
     """
     result = SoakResult(seed)
@@ -84,9 +83,10 @@ def fault_soak(n_faults: int, seed: int, *, steps_per_degree: float = 80.0, back
         result.journal[event] += 1
 
     with GrblSimulator(steps_per_degree=steps_per_degree, backlash_deg=backlash_deg, max_rate_deg_s=1e5,
-                       homing_time_s=0.002, reconnect_delay_s=0.01, seed=seed, tick_s=0.001) as sim:
+                       homing_time_s=0.002, reconnect_delay_s=0.01, seed=seed, tick_s=0.001,
+                       late_replies=late_replies) as sim:
         table = GrblTurntable(sim.port, 115200, steps_per_degree, backlash_deg, journal=journal,
-                              **timing)
+                              settled=sim.settled, **timing)
         table.connect()
         table.home()
         sim.set_faults(rates)
