@@ -14,9 +14,10 @@ Run as ``python -m benchmarks.bench_merge [--quick] [--out DIR]``.
    neighbourhoods of clipped pixels.
 
 3. Memory (``--memory``): a 7 x 24 MP (6000 x 4000) 16-bit TIFF bracket
-   written to a temporary directory (deleted afterwards), merged by
-   ``brdfrig merge`` with its defaults in a child process; peak resident set
-   size (``getrusage`` of the child) and wall time of ``repeats`` runs.
+   (``--format dng``: uncompressed RGGB DNGs of the same frames) written to a
+   temporary directory (deleted afterwards), merged by ``brdfrig merge`` with
+   its defaults (``--align``: and alignment) in a child process; peak resident
+   set size (``getrusage`` of the child) and wall time of ``repeats`` runs.
 
 The synthetic frames are not demosaiced (every pixel is measured
 independently), so brdfrig merges them with ``clip_radius=0``.
@@ -141,31 +142,45 @@ def throughput(h: int, w: int, repeats: int) -> dict:
     return {"seconds": times, "ratio": ratio}
 
 
-def memory(h: int, w: int, repeats: int) -> dict:
-    """Peak RSS (GB) and wall time (s) of ``brdfrig merge`` (defaults) on an (h, w) 7-frame 16-bit TIFF bracket."""
+def _write_frame(path: Path, frame: np.ndarray, fmt: str, time_s: float) -> Path:
+    """One uint16 (H, W, 3) frame as a 16-bit TIFF, or as the RGGB mosaic of an uncompressed DNG."""
+    if fmt == "tiff":
+        import tifffile
+
+        tifffile.imwrite(path, frame)
+        return path
+    from brdfrig.hdr.dng import write_dng
+
+    cfa = np.empty(frame.shape[:2], np.uint16)
+    for (y, x), c in zip(((0, 0), (0, 1), (1, 0), (1, 1)), (0, 1, 1, 2)):
+        cfa[y::2, x::2] = frame[y::2, x::2, c]
+    return write_dng(path, cfa, exposure_time_s=float(time_s), f_number=8.0, iso=100)
+
+
+def memory(h: int, w: int, repeats: int, fmt: str = "tiff", align: bool = False) -> dict:
+    """Peak RSS (GB) and wall time (s) of ``brdfrig merge`` (defaults) on an (h, w) 7-frame 16-bit bracket."""
     import resource
     import subprocess
     import tempfile
 
-    import tifffile
-
     with tempfile.TemporaryDirectory(prefix="bench-merge-") as tmp:
         tile = synthetic_bracket(h // 8, w // 8, seed=2)[1]
         paths = []
-        for k, f in enumerate(tile):
-            paths.append(Path(tmp) / f"f{k}.tif")
-            tifffile.imwrite(paths[-1], np.ascontiguousarray(np.tile(f, (8, 8, 1))))
-        del tile
+        for k, (f, t) in enumerate(zip(tile, TIMES)):
+            frame = np.ascontiguousarray(np.tile(f, (8, 8, 1)))
+            paths.append(_write_frame(Path(tmp) / f"f{k}.{'dng' if fmt == 'dng' else 'tif'}", frame, fmt, t))
+        del tile, frame
         cmd = [sys.executable, "-m", "brdfrig.cli.main", "merge", *map(str, paths), "--times",
                ",".join(map(str, TIMES)), "--full-well", str(FULL_WELL), "--read-noise", str(READ_NOISE),
-               "-o", str(Path(tmp) / "out.exr")]
+               "-o", str(Path(tmp) / "out.exr")] + (["--align"] if align else [])
         walls, peaks = [], []
         for _ in range(repeats):
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, capture_output=True)
             walls.append(time.perf_counter() - t0)
             peaks.append(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6)  # kB -> GB, max so far
-    print(f"\nMemory: brdfrig merge of 7 x {w}x{h} 16-bit TIFFs: peak RSS {max(peaks):.2f} GB, "
+    print(f"\nMemory: brdfrig merge{' --align' if align else ''} of 7 x {w}x{h} 16-bit {fmt.upper()}s: "
+          f"peak RSS {max(peaks):.2f} GB, "
           f"median wall time {np.median(walls):.1f} s over {repeats} runs")
     return {"peak_gb": max(peaks), "seconds": float(np.median(walls))}
 
@@ -178,9 +193,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per method (default: 3)")
     parser.add_argument("--memory", action="store_true",
                         help="only the memory benchmark: 7 x 24 MP 16-bit TIFFs through brdfrig merge")
+    parser.add_argument("--format", choices=("tiff", "dng"), default="tiff", help="frame files of --memory")
+    parser.add_argument("--align", action="store_true", help="--memory: merge with --align")
     args = parser.parse_args(argv)
     if args.memory:
-        memory(4000, 6000, args.repeats)
+        memory(4000, 6000, args.repeats, args.format, args.align)
         return 0
     if args.quick:
         accuracy(120, 160, args.out)

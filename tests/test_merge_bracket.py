@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,3 +201,94 @@ def test_align_leaves_an_unshifted_bracket_alone(tmp_path):
     assert aligned.merge.shifts.tolist() == [[0, 0]] * len(paths) and aligned.no_data == 0
     plain = merge_bracket_files(paths, policy, times=TIFF_TIMES).merge.radiance
     np.testing.assert_allclose(aligned.merge.radiance, plain, rtol=2e-6)  # aligned frames are read whole (float32)
+
+
+DNG_SHIFTS = [(0, 0), (2, -3), (5, 1), (-1, 4), (3, 3)]  # (dy, dx) where each frame's window starts in the scene
+DNG_TIMES = [1 / 64, 1 / 16, 1 / 4, 1.0, 4.0]
+
+
+def shifted_dng_bracket(directory, h=1024, w=200, seed=3):
+    """5 RGGB DNGs (14-bit, seeded noise) of one scene, each frame a window of it moved by ``DNG_SHIFTS``."""
+    import cv2
+
+    from brdfrig.hdr.dng import write_dng
+
+    rng = np.random.default_rng(seed)
+    coarse = np.exp(rng.normal(0, 1.5, (h // 8 + 4, w // 8 + 4, 3))).astype(np.float32)
+    scene = cv2.resize(coarse, ((w // 8 + 4) * 8, (h // 8 + 4) * 8), interpolation=cv2.INTER_CUBIC).clip(1e-3)
+    black, white, paths = 256, 16383, []
+    for k, (t, (dy, dx)) in enumerate(zip(DNG_TIMES, DNG_SHIFTS)):
+        raw = black + np.clip(scene[16 + dy:16 + dy + h, 16 + dx:16 + dx + w] * t * 0.3, 0, 1) * (white - black)
+        cfa = np.empty((h, w))
+        for (y, x), c in zip(((0, 0), (0, 1), (1, 0), (1, 1)), (0, 1, 1, 2)):
+            cfa[y::2, x::2] = raw[y::2, x::2, c]
+        cfa = np.round(np.clip(cfa + rng.normal(0, 6, cfa.shape), 0, white)).astype(np.uint16)
+        paths.append(write_dng(directory / f"f{k}.dng", cfa, black_level=black, white_level=white,
+                               exposure_time_s=t, f_number=8.0, iso=100))
+    return paths
+
+
+def _shift_whole(frame, dx, dy):
+    """A whole frame moved by (dx, dy) pixels, NaN where nothing was shifted in (the oracle of the streamed shift)."""
+    h, w = frame.shape[:2]
+    out = np.full(frame.shape, np.nan, np.float32)
+    out[max(0, dy):h + min(0, dy), max(0, dx):w + min(0, dx)] = frame[max(0, -dy):h - max(0, dy),
+                                                                      max(0, -dx):w - max(0, dx)]
+    return out
+
+
+@pytest.mark.filterwarnings("ignore::brdfrig.hdr.merge.SaturationWarning")
+def test_raw_bracket_streamed_one_decoded_frame_at_a_time_is_bit_identical(tmp_path):
+    """merge_files on DNGs (decoded one at a time, served by bands; --align by bands) equals the merge of the
+    whole decoded frames (aligned whole by the known shifts) bit for bit, and holds no whole decoded frame."""
+    import tracemalloc
+
+    from brdfrig.hdr.bracket import MergePolicy, merge_files as merge_bracket_files
+    from brdfrig.hdr.frames import ArrayFrame
+    from brdfrig.hdr.merge import merge_bracket
+    from brdfrig.hdr.raw import decode_raw
+
+    paths = shifted_dng_bracket(tmp_path)
+    whole = [decode_raw(p) for p in paths]
+    kwargs = dict(clip_radius=1, full_well=MergePolicy.full_well, read_noise=MergePolicy.read_noise)
+    for align in (False, True):
+        streamed = merge_bracket_files(paths, MergePolicy(align=align)).merge
+        frames = whole
+        if align:  # the shifts that move each window onto the median-exposure one (frame 2); frame 4 is too bright
+            ref_dy, ref_dx = DNG_SHIFTS[2]
+            assert [tuple(s) for s in streamed.shifts[:4]] == [(dx - ref_dx, dy - ref_dy)
+                                                                for dy, dx in DNG_SHIFTS[:4]]
+            frames = [ArrayFrame(_shift_whole(f, dx, dy), str(p), 1.0) for f, p, (dx, dy) in
+                      zip(whole, paths, streamed.shifts)]  # a source: arrays with NaN are refused
+        expected = merge_bracket(frames, DNG_TIMES, **kwargs)
+        expected.radiance[~np.isfinite(expected.radiance)] = 0.0  # no data after alignment: 0, as merge_files
+        expected.variance[~np.isfinite(expected.variance)] = 0.0
+        for key in ("radiance", "variance", "flags", "times"):
+            assert np.array_equal(getattr(streamed, key), getattr(expected, key)), (align, key)
+    del frames, whole, expected
+    for align in (False, True):
+        tracemalloc.start()
+        merge_bracket_files(paths, MergePolicy(align=align, reestimate_times=False))
+        peak = tracemalloc.get_traced_memory()[1] / streamed.radiance.size
+        tracemalloc.stop()
+        # outputs 9 bytes per sample, one decoded frame 2 (uint16), bands of 256 of the 1024 rows ~5 (measured
+        # 17-18); the 5 decoded frames held whole would add 20 (float32), aligned copies of them 20 more
+        assert peak < 24, (align, peak)
+
+
+def test_no_room_for_a_decoded_raw_frame_says_where(tmp_path, monkeypatch, capsys):
+    """The decoded copy of a raw frame goes to $TMPDIR; a full one (here /dev/full) is one line naming it, exit 2."""
+    import tempfile
+
+    from brdfrig.cli.main import main
+
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full")
+    paths = shifted_dng_bracket(tmp_path, h=64, w=64)
+    monkeypatch.setattr(tempfile, "TemporaryFile", lambda **_kw: open("/dev/full", "w+b"))
+    out = tmp_path / "hdr.exr"
+    assert main(["merge", *map(str, paths), "-o", str(out)]) == 2
+    assert capsys.readouterr().err == (f"brdfrig merge: error: disk full while decoding {paths[0]} into "
+                                       f"{tempfile.gettempdir()} (0 MB per raw frame): free some space there or "
+                                       "set TMPDIR to a disk with room\n")
+    assert not out.exists()

@@ -162,14 +162,14 @@ def check_distinct(files: Sequence[Path]) -> None:
 def _open_frames(files: Sequence[Path]) -> tuple[list, list[bool]]:
     """Frame sources of a bracket (one size, no two identical) and whether each is linear by its format.
 
-    Raw files are decoded whole (:func:`brdfrig.hdr.raw.decode_raw`); other images are read by rows.
+    Raw files are decoded one at a time into a temporary file read back by rows
+    (:class:`brdfrig.hdr.frames.RawFrame`); other images are read by rows.
     """
-    from brdfrig.hdr.frames import ArrayFrame, ImageFileFrame
-    from brdfrig.hdr.raw import decode_raw
+    from brdfrig.hdr.frames import ImageFileFrame, RawFrame
 
     sources, linear = [], []
     for f in files:
-        src = ArrayFrame(decode_raw(f), str(f), 1.0) if is_raw(f) else ImageFileFrame(f)
+        src = RawFrame(f) if is_raw(f) else ImageFileFrame(f)
         if sources and src.shape != sources[0].shape:
             raise InputError(f"{f} has size {src.shape[1]}x{src.shape[0]}, {files[0]} has "
                              f"{sources[0].shape[1]}x{sources[0].shape[0]}: a bracket must have one image size")

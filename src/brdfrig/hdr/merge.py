@@ -54,8 +54,9 @@ bands of rows (at most 2e6 pixel-channels per frame).  The outputs are stored
 plane by plane (channel-major), so writing them to EXR copies nothing.  The
 per-pixel loop is one fused numba kernel, parallel over blocks of pixels:
 each block of every frame is gathered once (frames read in their own dtype),
-then merged per pixel and channel.  Alignment needs whole frames: with
-``align=True`` the frames are read whole.
+then merged per pixel and channel.  Alignment (``align=True``) holds two
+grey planes while it measures the shifts, then the merge reads the shifted
+frames band by band (:func:`brdfrig.hdr.align.align_sources`).
 """
 
 from __future__ import annotations
@@ -69,9 +70,9 @@ import numba as nb
 import numpy as np
 
 from brdfrig.errors import InputError
-from brdfrig.hdr.align import align_frames
+from brdfrig.hdr.align import align_frames, align_sources
 from brdfrig.hdr.exposure_times import RATIO_MAX_SAMPLES, ExposureTimeWarning, estimate_times
-from brdfrig.hdr.frames import ArrayFrame, as_frame, read_whole
+from brdfrig.hdr.frames import ArrayFrame, as_frame
 
 __all__ = [
     "MergeResult",
@@ -449,7 +450,7 @@ def merge_bracket(
         (:func:`estimate_times`) where they differ from the nominal ones by
         more than ``ratio_tolerance`` (relative).
     align : bool
-        Translate frames onto the median-exposure frame first (:func:`align_frames`).
+        Translate frames onto the median-exposure frame first (:func:`brdfrig.hdr.align.align_sources`).
     iterations : int
         Re-weighting iterations of the optimal merge.
     names : sequence of str, optional
@@ -466,8 +467,7 @@ def merge_bracket(
     _check_settings(weighting, black_threshold, clip_threshold, clip_radius, sources)
     shifts = None
     if align and len(sources) > 1:
-        arrays, shifts = align_frames([read_whole(s) for s in sources], nominal, saturation=1.0)
-        sources = [ArrayFrame(a, s.name, 1.0) for a, s in zip(arrays, sources)]
+        sources, shifts = align_sources(sources, nominal)
     used = _times_used(sources, nominal, clip_threshold, clip_radius, ratio_tolerance) \
         if reestimate_times and len(sources) > 1 else nominal.copy()
     settings = {"clip_radius": int(clip_radius), "clip": clip_threshold, "lo": black_threshold,

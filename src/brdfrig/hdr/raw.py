@@ -32,7 +32,8 @@ import numpy as np
 from brdfrig.errors import InputError
 from brdfrig.hdr.exr import oiio_input, read_oiio
 
-__all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "read_exposure", "read_frame", "is_raw", "read_camera_model"]
+__all__ = ["Exposure", "RAW_SUFFIXES", "decode_raw", "decode_raw16", "raw16_to_float", "read_exposure", "read_frame",
+           "is_raw", "read_camera_model"]
 
 #: File suffixes decoded by LibRaw (others go through OpenImageIO).
 RAW_SUFFIXES = frozenset({".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf",
@@ -78,6 +79,16 @@ def decode_raw(path: str | os.PathLike) -> np.ndarray:
         sensor's white level (see the module docstring); image rows and
         columns as stored by the sensor (no rotation).
     """
+    return raw16_to_float(decode_raw16(path))
+
+
+def raw16_to_float(rgb16: np.ndarray) -> np.ndarray:
+    """LibRaw's 16-bit output (all or a band of rows) as :func:`decode_raw` returns it: float32, 1.0 = white level."""
+    return rgb16.astype(np.float32) / np.float32(65535.0)
+
+
+def decode_raw16(path: str | os.PathLike) -> np.ndarray:
+    """Decode a camera raw file to LibRaw's 16-bit output: (H, W, 3) uint16, 65535 = white level (see decode_raw)."""
     import rawpy
 
     path = Path(path)
@@ -98,7 +109,7 @@ def decode_raw(path: str | os.PathLike) -> np.ndarray:
     except (rawpy.LibRawError, OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot decode raw file (truncated, corrupt or unsupported): "
                          f"{type(exc).__name__}: {exc}") from None
-    return rgb16.astype(np.float32) / np.float32(65535.0)
+    return rgb16
 
 
 def read_frame(path: str | os.PathLike) -> tuple[np.ndarray, bool]:
