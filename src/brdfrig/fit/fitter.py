@@ -22,6 +22,7 @@ Pipeline (``docs/MATH.md``):
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -33,7 +34,7 @@ from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
 from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
-from brdfrig.fit.registry import MODELS, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
+from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
 from brdfrig.fit.relight import estimate_pixels, loso_estimates, other_lightings, predict_under, spread_estimates
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
@@ -97,7 +98,7 @@ class _Candidates:
         kind = REGISTRY[name].kind
         if kind == "single":
             try:
-                cand = self._single(name)
+                cand = self._single(name, self._parametric_prior(full_lmax, auto) if REGISTRY[name].prior_parametric else None)
             except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
                 if name == self.required:
                     raise
@@ -135,11 +136,25 @@ class _Candidates:
         return Candidate(name, heldout_relative_rms=held_err, full_rank=stats.full_rank, system=stats,
                          radiance_check=check, seconds=st.seconds + time.perf_counter() - t0)
 
-    def _single(self, name: str) -> Candidate:
-        """A single-model fit on the training pixels of each scene (limb margin applied, held-out pixels kept out)."""
+    def _parametric_prior(self, full_lmax: int, auto: bool) -> str:
+        """Fit every parametric family (:data:`PARAMETRIC`); the one with the smallest held-out error and
+        finite, non-negative held-out radiance."""
+        for m in PARAMETRIC:
+            self.fit(m, full_lmax, auto)
+        usable = {m: self.entries[m].heldout_relative_rms for m in PARAMETRIC
+                  if m in self.brdfs and self.entries[m].radiance_check is None}
+        usable = {m: (math.inf if e is None else e) for m, e in usable.items()}
+        if not usable:
+            raise ValueError("no parametric fit to take as the prior")
+        return min(usable, key=usable.get)
+
+    def _single(self, name: str, prior: str | None = None) -> Candidate:
+        """A single-model fit on the training pixels of each scene (limb margin applied, held-out pixels kept
+        out); ``prior``: the candidate passed to it as ``prior=``."""
         t0 = time.perf_counter()
         data = self.data
-        brdf, rep = single_fit(name)(data.train_scenes(), lmax=self.lmax, bands=self.bands, progress=data.progress)
+        extra = {} if prior is None else {"prior": self.brdfs[prior]}
+        brdf, rep = single_fit(name)(data.train_scenes(), lmax=self.lmax, bands=self.bands, progress=data.progress, **extra)
         self.brdfs[name] = brdf
         held_err = check = None
         if len(data.held):
@@ -148,7 +163,7 @@ class _Candidates:
             if np.all(np.isfinite(pred)):
                 held_err = relative_rms(pred, data.pool.radiance[data.held], data.pool.weights[data.held])
         return Candidate(name, heldout_relative_rms=held_err, full_rank=bool(rep["determined"]), fit_report=rep,
-                         radiance_check=check, seconds=time.perf_counter() - t0)
+                         radiance_check=check, seconds=time.perf_counter() - t0, prior=prior)
 
 
 def fit_brdf(

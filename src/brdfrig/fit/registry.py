@@ -9,7 +9,9 @@ Kinds of model:
 ``prior``   ``full`` solved by Tikhonov toward the projection of another fit (``full+prior``);
 ``single``  a fit function with the signature of :func:`brdfrig.fit.microfacet.fit_microfacet`,
             ``fit(scenes, lmax=..., bands=..., progress=...) -> (brdf, report)`` with
-            ``report["determined"]`` a bool; the scenes hold only the training pixels.
+            ``report["determined"]`` a bool; the scenes hold only the training pixels.  A single model
+            with ``prior_parametric`` also takes ``prior=brdf``: the fitter passes the parametric
+            candidate with the smallest held-out error (``bivariate+prior``).
 """
 
 from __future__ import annotations
@@ -24,13 +26,15 @@ __all__ = ["ModelInfo", "REGISTRY", "RICHNESS", "MODELS", "SOLVERS", "LINEAR_SH"
 
 @dataclass(frozen=True)
 class ModelInfo:
-    """A fittable model: its name, kind (module docstring), for ``single`` models ``module:function``, and
-    whether it is a parametric family of a few parameters per channel (``parametric``)."""
+    """A fittable model: its name, kind (module docstring), for ``single`` models ``module:function``,
+    whether it is a parametric family of a few parameters per channel (``parametric``), and whether its
+    fit takes the best parametric candidate as a prior (``prior_parametric``)."""
 
     name: str
     kind: str
     fit: str | None = None
     parametric: bool = False
+    prior_parametric: bool = False
 
 
 SOLVERS: tuple[str, ...] = ("paper", "joint", "tikhonov")
@@ -44,6 +48,7 @@ REGISTRY: dict[str, ModelInfo] = {m.name: m for m in (
     ModelInfo("sheen", "single", "brdfrig.fit.pbr_fit:fit_sheen", parametric=True),
     ModelInfo("microfacet", "single", "brdfrig.fit.microfacet:fit_microfacet", parametric=True),
     ModelInfo("bivariate", "single", "brdfrig.fit.bivariate:fit_bivariate"),
+    ModelInfo("bivariate+prior", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_parametric=True),
     ModelInfo("full", "linear"),
     ModelInfo("full+prior", "prior"),
 )}

@@ -92,7 +92,7 @@ class Candidate:
     system : SystemStats or None
         Linear models only.
     prior : str or None
-        ``full+prior``: the model it is regularised toward.
+        ``full+prior``, ``bivariate+prior``: the candidate it is regularised toward.
     fit_report : dict or None
         Single-model fits (``microfacet``, ...): the fit's own report (its parameters).
     plausibility : dict or None
