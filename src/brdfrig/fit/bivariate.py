@@ -33,6 +33,9 @@ Steps (:func:`fit_bivariate`):
 - smoothness ``lam``: ``lam_rel * ||R||_F^2 / ||D||_F^2`` with ``lam_rel`` on a log grid
   (:data:`LAMBDA_GRID`); per channel, the unconstrained Tikhonov solution's weighted error on
   the check pixels picks ``lam_rel`` (floored at :data:`LAMBDA_MIN`);
+- prior (optional, the ``bivariate+prior`` model): the smoothness term becomes ``||D (x - x0)||^2`` with
+  ``x0`` another fit's node values (:func:`project_to_nodes`, its mean over ``phi_d``), ``lam_rel`` from
+  :data:`PRIOR_LAMBDA_GRID`: the nodes the image observes follow the data, the others the prior;
 - constraints: the non-negative and the monotone (+ non-negative) solutions at that ``lam``;
   the monotone one is kept unless the check pixels prefer the other by more than
   :data:`MONOTONE_MAX_LOSS` (summed over channels: "where the data support it");
