@@ -95,7 +95,7 @@ residual 0.9% -> 1.8%; with ``D_WEIGHT`` 10 at 0.1 / 0.3 / 1: felt 14.7% / 12.4%
 PRIOR_LAMBDA_GRID = tuple(10.0 ** np.arange(0.5, 3.0, 0.5))
 """Candidate ``lam_rel`` with a prior (smoothness of the deviation from it; the check pixels choose).  Measured on
 14 rgl materials (96 px, grace -> ennis, all pixels, prior = the parametric fit with the smallest check error,
-``lam_rel >= 3`` vs ``>= 30``): median relighting error 8.4% vs 9.7%, p90 23% vs 20%; without a prior 12.7%."""
+``lam_rel >= 3`` vs ``>= 30``): median relighting error 8.4% vs 9.7%, worst 56% vs 147%; without a prior 12.7%."""
 PRIOR_PHI_SAMPLES = 36
 """``phi_d`` samples of :func:`project_to_nodes`."""
 MONOTONE_MAX_LOSS = 0.02
