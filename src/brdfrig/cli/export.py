@@ -7,16 +7,17 @@ XML <bsdf>, or with --scene ENV a whole scene: the sphere under that lighting), 
 with the KHR extensions that apply).
 
 The renderer formats hold the closest physically based material (dielectric, conductor
-or sheen, with OpenPBR's parameter names). Every export is rendered back under brdfrig's
+or sheen, with OpenPBR's parameter names); mitsuba holds the Mitsuba BSDF (diffuse,
+roughplastic or principled) fitted as Mitsuba evaluates it. Every export is rendered back under brdfrig's
 three standard lightings against the BRDF it came from; that error is printed and written
 beside the export as OUT.error.json.
 """
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from brdfrig.cli._command import add_command, add_progress_argument
 from brdfrig.cli._output import add_output_arguments, check_output
 from brdfrig.cli.library import add_library_argument
 from brdfrig.ranges import Range
@@ -27,8 +28,7 @@ STEP = Range(0.25, 15.0)  # degrees
 def register(subparsers) -> None:
     from brdfrig.export.formats import FORMATS
 
-    p = subparsers.add_parser("export", help="write a BRDF as MERL, a grid table, Mitsuba, OpenPBR or glTF",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(subparsers, "export", "write a BRDF as MERL, a grid table, Mitsuba, OpenPBR or glTF", __doc__)
     p.add_argument("brdf", type=Path, help="BRDF file from 'brdfrig fit', or a measured material (.h5, .binary)")
     p.add_argument("--format", required=True, choices=FORMATS, help="what to write")
     add_output_arguments(p, "OUT", "output file (.binary, .csv/.npz, .xml, .mtlx or .gltf by format)")
@@ -36,7 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--step", type=STEP.arg(), default=2.0, metavar="DEG",
                    help=f"table: grid step in degrees{STEP.text()} (default: %(default)s)")
     p.add_argument("--json", action="store_true", help="print the error record as JSON")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_argument(p)
     add_library_argument(p)
     p.set_defaults(func=run)
 
