@@ -190,8 +190,13 @@ def result_from_json(data: dict) -> MeasuredResult:
                           phases=dict(data.get("phases_seconds", {})))
 
 
+PLOT_CEILING = 2.0
+"""Relative errors above this are drawn at it in :func:`plot_errors` (an unregularised fit can reach 1e6)."""
+
+
 def plot_errors(result: MeasuredResult, path: Path) -> Path:
-    """PNG: relighting error per material (x) per model (markers), one panel per (scenes, noise), log scale."""
+    """PNG: relighting error per material (x) per model (markers), one panel per (scenes, noise), log scale,
+    clipped at :data:`PLOT_CEILING`."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -208,14 +213,16 @@ def plot_errors(result: MeasuredResult, path: Path) -> Path:
         for model, marker in zip(result.models, "os^Dv<>px*h+"):
             y = [by_mat[n][model].error if model in by_mat[n] else np.nan for n in names]
             style = dict(ms=9, mfc="none", mew=1.5) if model == AUTO else dict(ms=4, alpha=0.8)
-            ax.plot(x, np.maximum(y, 1e-5), marker, label=model, **style)
+            ax.plot(x, np.clip(y, 1e-5, PLOT_CEILING), marker, label=model, **style)
         ax.set_xticks(x, [n + ("*" if next(iter(by_mat[n].values())).held_out else "") for n in names],
                       rotation=90, fontsize=6)
         if any(math.isfinite(c.error) for v in by_mat.values() for c in v.values()):
             ax.set_yscale("log")
+        ax.set_ylim(top=1.5 * PLOT_CEILING)
         ax.set_ylabel("relighting error")
         ax.set_title(f"{scenes} scene(s), noise {noise:g}: fit {result.setup.fit_probe}, "
-                     f"relight {result.setup.relight_probes[0]} (* held out)", fontsize=9)
+                     f"relight {result.setup.relight_probes[0]} (* held out; errors above "
+                     f"{PLOT_CEILING:.0%} drawn at {PLOT_CEILING:.0%})", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, ncol=4)
     fig.tight_layout()
