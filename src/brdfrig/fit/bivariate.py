@@ -66,6 +66,7 @@ from scipy.optimize import nnls
 from tqdm import tqdm
 
 from brdfrig.fit.brdf import register_model
+from brdfrig.fit.measured import rusinkiewicz_directions
 from brdfrig.fit.microfacet import _check_scenes, _subsample
 from brdfrig.fit.quadrature import LobeQuadrature, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment, Scene
@@ -394,8 +395,6 @@ def project_to_nodes(brdf, nh: int, nd: int, phi_samples: int = PRIOR_PHI_SAMPLE
     within 1e-3 of the horizon are left out of the mean, and a node with none left takes the value of
     the node below it in ``theta_h``.
     """
-    from brdfrig.fit.measured import rusinkiewicz_directions
-
     phi = (np.arange(phi_samples) + 0.5) / phi_samples * math.pi
     th, td, pd = np.meshgrid(theta_h_nodes(nh), np.minimum(theta_d_nodes(nd), math.radians(89.0)), phi, indexing="ij")
     wi, wo = rusinkiewicz_directions(th, td, pd)
