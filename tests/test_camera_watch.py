@@ -29,7 +29,9 @@ def test_waits_for_a_new_complete_file(tmp_path):
     watch.mkdir(), dest.mkdir()
     (watch / "OLD_0001.CR2").write_bytes(b"old")  # already there: not a new capture
     (watch / "notes.txt").write_bytes(b"x")  # not a camera file
-    with WatchFolderCamera(watch, timeout_s=5.0, stable_s=0.15, poll_s=0.02) as cam:
+    # stable_s far above the writer's 0.05 s pauses: a busy machine may stall this process (writer and watcher
+    # alike) for a moment, and a file unchanged for stable_s counts as complete
+    with WatchFolderCamera(watch, timeout_s=30.0, stable_s=2.0, poll_s=0.02) as cam:
         cam.set_exposure(0.25, 100, 8)
         chunks = [bytes([k]) * 1000 for k in range(8)]
         writer = slow_writer(watch / "IMG_0002.CR2", chunks, 0.05)  # growing for ~0.4 s
