@@ -102,11 +102,14 @@ def test_ctrl_c_stops_cleanly_and_resume_finishes(tmp_path):
     # the installed console script, as a user runs it (`python -m capture` exits by SIGINT, -2, about half the
     # time after the same clean stop: a CPython/runpy quirk outside brdfrig)
     script = Path(sys.executable).parent / "brdfrig"
+    # SIGINT at its default in the child, as in a terminal: a test run started as a background job of a
+    # non-interactive shell inherits it ignored, and the Ctrl-C would then never arrive
     p = subprocess.Popen([str(script), "capture", "run", str(plan), "--out", str(out), "--no-fit", "--no-progress"],
-                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     journal = out / "journal.jsonl"
-    # the whole journal: a look at its tail alone missed the "moved" record once the shots after it were written
+    # the whole journal: its tail alone loses the "moved" record once the shots after it are written
     while time.monotonic() < deadline and (not journal.exists() or b'"moved"' not in journal.read_bytes()):
         time.sleep(0.01)
     p.send_signal(signal.SIGINT)  # Ctrl-C lands mid-shot at 0 degrees or mid-move to 90
