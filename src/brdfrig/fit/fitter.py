@@ -16,7 +16,9 @@ Pipeline (``docs/MATH.md``):
 5. Relighting estimate of every candidate under other lighting (:mod:`brdfrig.fit.relight`):
    leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.
 6. Judgement and choice (:mod:`brdfrig.fit.select`): determinacy, finite non-negative predicted
-   radiance, plausibility; ``auto`` picks by the relighting estimate.  The report is a
+   radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against the
+   data-driven table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), with several
+   scenes it picks by the relighting estimate.  The report is a
    :class:`brdfrig.fit.report.FitReport`.
 """
 
@@ -34,6 +36,7 @@ from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
 from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
+from brdfrig.fit.noise import scenes_noise
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
 from brdfrig.fit.relight import estimate_pixels, loso_estimates, other_lightings, predict_under, spread_estimates
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
@@ -247,6 +250,9 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         pool, counts = gather_pixels(scenes, max_theta_deg)
     with clock("lighting"):
         coeffs = project_lighting(scenes, lmax)
+    with clock("noise"):
+        usable = pool.weights > 0
+        noise = scenes_noise(pool.scene[usable], pool.normals[usable], pool.radiance[usable])
     order = np.random.default_rng(seed).permutation(len(pool.weights))
     n_held = min(int(HELDOUT_FRACTION * len(order)), HELDOUT_MAX)
     data = FitData(scenes, pool, coeffs, order[n_held:], np.sort(order[:n_held]), clock, progress, tol)
@@ -268,7 +274,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         _estimate(data, fitter, model, (lmax, pmax, solver, full_lmax, max_theta_deg))
 
     if model == "auto":
-        chosen, reason, selection = choose(cands)
+        chosen, reason, selection = choose(cands, noise, one_image=len(scenes) == 1)
     else:
         chosen, selection = model, "requested"
         reason = "requested" + ("" if cands[model].determined else " (WARNING: not determined by these data; see identifiability)")
@@ -282,7 +288,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         unobservable_bands=ident.unobservable_bands, identifiability=ident.to_dict(),
         identifiability_summary=ident.summary(), candidates=cands, selection=selection,
         relight=cands[chosen].relight or RelightEstimate(None, "none", "not estimated (estimate=False)"),
-        warnings=fit_warnings(cands[chosen], ident, counts),
+        pixel_noise=noise, warnings=fit_warnings(cands[chosen], ident, counts),
     )
     report.seconds, report.stage_seconds = time.perf_counter() - t0, clock.report()
     return FitResult(brdf=fitter.brdfs[chosen], report=report, brdfs=dict(fitter.brdfs))

@@ -6,25 +6,39 @@
   other lightings) must be finite and non-negative (:func:`radiance_problem`).
 - Choice (:func:`choose`): ``auto`` keeps the determined candidates, of those the ones whose radiance
   check passed and of those the physically plausible ones (each filter applied when it leaves any:
-  :func:`brdfrig.fit.models.plausibility`), and picks the one
-  with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`); of those within
-  :data:`SELECT_RTOL` of it, the one with the smallest held-out error.  Without any estimate it picks
-  the richest (order :data:`brdfrig.fit.registry.RICHNESS`) whose held-out error (same lighting) is
-  within :data:`SELECT_RTOL` of the best.
+  :func:`brdfrig.fit.models.plausibility`).  From one image it asks whether a parametric family holds
+  (:func:`family_holds`): the family with the smallest held-out error is kept when that error, above
+  the image's pixel noise, is at most :data:`FAMILY_HOLDS` times the data-driven table's
+  (``bivariate+prior``) plus :data:`NOISE_TOL` times the noise; otherwise the table.  With several scenes (or without those candidates) it
+  picks the one with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`); of those
+  within :data:`SELECT_RTOL` of it, the one with the smallest held-out error.  Without any estimate it
+  picks the richest (order :data:`brdfrig.fit.registry.RICHNESS`) whose held-out error (same lighting)
+  is within :data:`SELECT_RTOL` of the best.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from brdfrig.fit.identifiability import Identifiability
-from brdfrig.fit.registry import REGISTRY, RICHNESS
+from brdfrig.fit.registry import PARAMETRIC, REGISTRY, RICHNESS
 from brdfrig.fit.report import Candidate, PixelCounts
 
-__all__ = ["SELECT_RTOL", "COND_WARN", "NEGATIVE_RTOL", "judge", "radiance_problem", "choose", "fit_warnings"]
+__all__ = ["SELECT_RTOL", "FAMILY_HOLDS", "NOISE_TOL", "TABLE", "COND_WARN", "NEGATIVE_RTOL", "judge", "radiance_problem",
+           "excess_error", "family_holds", "choose", "fit_warnings"]
 
 SELECT_RTOL = 0.02
 """``auto`` picks the richest candidate whose score is within this fraction of the best."""
+FAMILY_HOLDS = 0.5
+"""From one image a parametric family is kept when its held-out error above the noise is at most this
+fraction of the table's (docs/DESIGN.md, History: the one-image choice of ``auto``)."""
+NOISE_TOL = 0.3
+"""... plus this fraction of the pixel noise: two fits that both reproduce the held-out pixels to the noise
+tie, and the family is kept."""
+TABLE = "bivariate+prior"
+"""The data-driven candidate a parametric family is weighed against from one image."""
 COND_WARN = 1e6
 """Condition number (column-equilibrated) above which the report warns that weakly determined
 directions may relight badly under other lighting.  For the ``tikhonov`` solver (and ``full+prior``)
@@ -83,11 +97,44 @@ def _best_reproducing_within(names: list[str], score: dict[str, float], cands: d
     return min(near, key=lambda m: (cands[m].heldout_relative_rms is None, cands[m].heldout_relative_rms or 0.0)), best
 
 
-def choose(cands: dict[str, Candidate]) -> tuple[str, str, str]:
-    """``auto``'s choice: ``(model, reason, criterion)`` (module docstring)."""
+def excess_error(heldout: float, noise: float | None) -> float:
+    """The part of a relative held-out error the pixel noise does not explain: ``sqrt(max(h^2 - nu^2, 0))``."""
+    return math.sqrt(max(heldout**2 - (noise or 0.0) ** 2, 0.0))
+
+
+def family_holds(cands: dict[str, Candidate], names: list[str], noise: float | None) -> tuple[str, str] | None:
+    """One image: the best parametric family if it holds against :data:`TABLE`, else the table, with the reason.
+
+    The noise is capped at the smaller of the two held-out errors (held-out pixels are not fitted, so no
+    fit's error is below the noise; a larger ``noise`` is shading the estimate took for noise, as on
+    near-mirror materials).  None when ``names`` (the admissible candidates) hold no parametric family
+    or no table with held-out errors.
+    """
+    held = {m: cands[m].heldout_relative_rms for m in names if cands[m].heldout_relative_rms is not None}
+    families = [m for m in PARAMETRIC if m in held]
+    if TABLE not in held or not families:
+        return None
+    family = min(families, key=held.get)
+    noise = min(noise or 0.0, held[family], held[TABLE])
+    e_family, e_table = excess_error(held[family], noise), excess_error(held[TABLE], noise)
+    above = f"held-out error above the pixel noise ({noise:.3g})"
+    if e_family <= FAMILY_HOLDS * e_table + NOISE_TOL * noise:
+        return family, f"the family holds: {above} {e_family:.4g} vs the table's {e_table:.4g}"
+    return TABLE, f"no family holds: {above} {e_table:.4g} for the table, {e_family:.4g} for the best family ({family})"
+
+
+def choose(cands: dict[str, Candidate], noise: float | None = None, one_image: bool = False) -> tuple[str, str, str]:
+    """``auto``'s choice: ``(model, reason, criterion)`` (module docstring).
+
+    ``noise``: the relative pixel noise of the image (:mod:`brdfrig.fit.noise`); ``one_image``: the fit
+    has one scene, so :func:`family_holds` decides.
+    """
     ok = _admissible(cands)
     if not ok:
         return "diffuse", "no candidate is determined by these data; fell back to diffuse (minimum norm)", "none"
+    held = family_holds(cands, ok, noise) if one_image else None
+    if held is not None:
+        return held[0], held[1], "family holds"
     rated = [m for m in ok if cands[m].relight is not None and cands[m].relight.value is not None]
     if rated:
         score = {m: cands[m].relight.value for m in rated}

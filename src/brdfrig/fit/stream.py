@@ -69,10 +69,10 @@ REDUCE_OUTSIDE_RTOL = 1e-11
 basis adds rank: the stream starts again unreduced."""
 _SKETCH_ROWS = 8
 
-STAGES = ("gather", "lighting", "identifiability", "design", "qr", "probe", "solve", "other")
-"""Timed stages of a fit: pixel gathering, lighting projection, identifiability analysis, design
-assembly (rotated lighting and outgoing SH, held-out rows included), QR updates (with the reduced-basis
-SVD and checks), stopping-rule probes, final solves, and the rest (single-model fits, priors,
+STAGES = ("gather", "lighting", "noise", "identifiability", "design", "qr", "probe", "solve", "other")
+"""Timed stages of a fit: pixel gathering, lighting projection, pixel-noise estimate, identifiability
+analysis, design assembly (rotated lighting and outgoing SH, held-out rows included), QR updates (with the
+reduced-basis SVD and checks), stopping-rule probes, final solves, and the rest (single-model fits, priors,
 plausibility, relighting estimates)."""
 
 
