@@ -250,9 +250,11 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         pool, counts = gather_pixels(scenes, max_theta_deg)
     with clock("lighting"):
         coeffs = project_lighting(scenes, lmax)
-    with clock("noise"):
-        usable = pool.weights > 0
-        noise = scenes_noise(pool.scene[usable], pool.normals[usable], pool.radiance[usable])
+    noise = None
+    if model == "auto" and len(scenes) == 1:  # only the one-image choice uses it
+        with clock("noise"):
+            usable = pool.weights > 0
+            noise = scenes_noise(pool.scene[usable], pool.normals[usable], pool.radiance[usable])
     order = np.random.default_rng(seed).permutation(len(pool.weights))
     n_held = min(int(HELDOUT_FRACTION * len(order)), HELDOUT_MAX)
     data = FitData(scenes, pool, coeffs, order[n_held:], np.sort(order[:n_held]), clock, progress, tol)

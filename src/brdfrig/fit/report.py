@@ -144,9 +144,9 @@ class FitReport:
     """What ``fit_brdf`` did and why: inputs, identifiability, every candidate, the choice, warnings.
 
     ``relight`` is the chosen model's :class:`RelightEstimate`; ``selection`` names the criterion
-    ``auto`` ranked the candidates by (or ``"requested"``); ``pixel_noise`` is the images' relative pixel
-    noise estimated from their pixels (:mod:`brdfrig.fit.noise`; None when too few); ``stage_seconds``
-    has wall-clock seconds per stage (:data:`brdfrig.fit.stream.STAGES`).
+    ``auto`` ranked the candidates by (or ``"requested"``); ``pixel_noise`` is the image's relative pixel
+    noise estimated from its pixels (:mod:`brdfrig.fit.noise`; ``auto`` from one image only, None otherwise
+    or when too few); ``stage_seconds`` has wall-clock seconds per stage (:data:`brdfrig.fit.stream.STAGES`).
     """
 
     chosen_model: str
@@ -222,9 +222,10 @@ def _pct(value: float | None) -> str:
 
 def format_report(report: FitReport) -> list[str]:
     """The lines ``brdfrig fit`` prints: pixels, one line per candidate, the choice and the relighting estimate."""
-    lines = [f"pixels: {asdict(report.pixels)}",
-             f"pixel noise (estimated from the image): {_pct(report.pixel_noise)}",
-             f"  {'model':10s} {'held-out':>9s} {'relight est.':>12s}  system / parameters"]
+    lines = [f"pixels: {asdict(report.pixels)}"]
+    if report.pixel_noise is not None:
+        lines.append(f"pixel noise (estimated from the image): {_pct(report.pixel_noise)}")
+    lines += [f"  {'model':10s} {'held-out':>9s} {'relight est.':>12s}  system / parameters"]
     for name, c in report.candidates.items():
         if not c.fitted:
             lines.append(f"  {name:10s} skipped: {c.skipped}")
