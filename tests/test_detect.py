@@ -211,7 +211,7 @@ def test_fit_finds_a_frame_filling_sphere_without_circle(tmp_path, capsys):
 
     image = _render_cli(tmp_path, 64)
     assert main(["fit", "--scene", str(tmp_path / "env.exr"), str(image), "--model", "diffuse", "--lmax", "2",
-                 "--no-progress", "-o", str(tmp_path / "fit.json")]) == 0
+                 "--no-progress", "--no-estimate", "-o", str(tmp_path / "fit.json")]) == 0
     used = json.loads((tmp_path / "fit.json").read_text())["provenance"]["inputs"][0]["circle"]
     assert np.abs(np.subtract(used, (32, 32, 32))).max() <= 0.25, used
 

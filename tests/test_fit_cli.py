@@ -65,7 +65,7 @@ def test_fit_detects_the_circle_when_not_given(files):
     d, _ = files
     out = d / "auto.json"
     assert main(["fit", "--scene", str(d / "grace.exr"), str(d / "sphere.exr"), "--model", "diffuse",
-                 "--lmax", "4", "--no-progress", "-o", str(out)]) == 0
+                 "--lmax", "4", "--no-progress", "--no-estimate", "-o", str(out)]) == 0
     _, report = load_brdf(out)
     assert report["pixels"]["used"] > 0.8 * math.pi * CIRCLE[2] ** 2 * math.sin(math.radians(80)) ** 2
     cx, cy, r = report_circle = _circle(out)
@@ -113,8 +113,9 @@ def test_fit_from_a_mirror_ball_probe(files):
     write_exr(d / "ball.exr", ball)
     out = d / "probe.json"
     assert main(["fit", "--probe-scene", str(d / "ball.exr"), str(d / "sphere.exr"), "--model", "diffuse",
-                 "--probe-circle", "70,70,60", "--lmax", "6", "--no-progress", "-o", str(out)]) == 0
+                 "--probe-circle", "70,70,60", "--lmax", "6", "--no-progress", "--no-estimate", "-o", str(out)]) == 0
     brdf, report = load_brdf(out)
     assert report["n_scenes"] == 1
+    assert report["relight"]["value"] is None and report["candidates"].keys() == {"diffuse"}  # --no-estimate: no reference fits
     # the ball's rim mask leaves a cone behind it unseen and the map is resampled: a few percent
     np.testing.assert_allclose(brdf.albedo, ALBEDO, rtol=0.05)

@@ -36,6 +36,9 @@ def register(subparsers) -> None:
     p.add_argument("--solver", choices=SOLVERS, default="joint", help="least-squares solver (default: %(default)s)")
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
+    p.add_argument("--no-estimate", action="store_true",
+                   help="skip the relighting estimate of the requested --model and the reference fits it takes "
+                        "(faster; 'auto' always estimates, it chooses by it)")
     add_progress_argument(p)
     p.add_argument("--figure", default=None, help="also write a PNG: each scene's image, the fit's rendering and the residual")
     p.add_argument("--report", default=None, metavar="REPORT.html",
@@ -137,7 +140,7 @@ def run(args) -> int:
             inputs.append({"lighting": str(env_path), "lighting_kind": kind, "image": str(image_path), "circle": list(used)})
 
     result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress,
-                      estimate=True)
+                      estimate=not args.no_estimate)
     rep = result.report
     say = Printer(args.json)
     say(rep.identifiability_summary)
