@@ -108,7 +108,7 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     assert re.search(rf"^nielsen/cardboard\*\s+{num}\s+{num}\s+\S+", text, re.M), text
     assert re.search(rf"^\s+1\s+0\s+tuning\s+auto\s+1\s+{num}\s+{num}\s+{num}", text, re.M), text
     assert re.search(rf"^\s+1\s+0\s+held-out\s+diffuse\s+1\s+{num}", text, re.M), text
-    for name in ("errors.png", "worst.png"):
+    for name in ("errors.png", "worst.png", "estimates.png"):
         assert (out / name).stat().st_size > 5_000
     data = json.loads((out / "measured.json").read_text())
     assert len(data["cases"]) == 4 and not any(c["failure"] for c in data["cases"])

@@ -52,7 +52,7 @@ def register(subparsers) -> None:
     add_progress_argument(p)
     p.add_argument("--measured", action="store_true",
                    help="the measured-materials benchmark instead (fit under one probe, "
-                        "relight under others, every model; table, summary, errors.png, worst.png, measured.json)")
+                        "relight under others, every model; table, summary, errors.png, worst.png, estimates.png, measured.json)")
     add_measured_arguments(p)
     p.set_defaults(func=run)
 

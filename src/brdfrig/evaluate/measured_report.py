@@ -229,6 +229,43 @@ def plot_errors(result: MeasuredResult, path: Path) -> Path:
     return save_png(fig, path, dpi=100)
 
 
+def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
+    """PNG: ``auto``'s reported relighting estimate against its measured relighting error (headline probe),
+    log-log, one marker per (scenes, noise), the held-out materials filled; the line of equality and the
+    :data:`ESTIMATE_FACTOR` band.  None when no ``auto`` case reported an estimate."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from brdfrig.report.figures import save_png
+
+    cases = [c for c in result.cases if c.model == AUTO and not c.failure and c.estimate and c.error > 0]
+    if not cases:
+        return None
+    fig, ax = plt.subplots(figsize=(5.2, 5.0))
+    for k, (scenes, noise) in enumerate(sorted({(c.scenes, c.noise) for c in cases})):
+        group = [c for c in cases if (c.scenes, c.noise) == (scenes, noise)]
+        inside = sum(1 / ESTIMATE_FACTOR <= c.estimate / c.error <= ESTIMATE_FACTOR for c in group)
+        for held, fill in ((False, "none"), (True, None)):
+            pts = [(c.error, c.estimate) for c in group if c.held_out == held]
+            if pts:
+                x, y = np.array(pts).T
+                ax.plot(x, y, "os^D"[k % 4], color=f"C{k}", mfc=fill, ms=5, label=f"{scenes} scene(s), noise {noise:g}"
+                        + (f": {inside}/{len(group)} within {ESTIMATE_FACTOR:g}x" if not held else " (held out)"))
+    lo = 0.5 * min(min(c.error, c.estimate) for c in cases)
+    hi = 2.0 * max(max(c.error, c.estimate) for c in cases)
+    line = np.array([lo, hi])
+    ax.plot(line, line, "k-", lw=0.8)
+    ax.fill_between(line, line / ESTIMATE_FACTOR, line * ESTIMATE_FACTOR, color="0.85", zorder=0)
+    ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel=f"measured relighting error ({result.setup.relight_probes[0]})",
+           ylabel="reported estimate", title=f"auto: estimate vs measured (band: within {ESTIMATE_FACTOR:g}x)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save_png(fig, path, dpi=100)
+
+
 def _image(truth, values: np.ndarray) -> np.ndarray:
     img = np.zeros((truth.setup.size, truth.setup.size, values.shape[1]))
     img[truth.rows, truth.cols] = values
@@ -279,7 +316,7 @@ def write_partial(result: MeasuredResult, out: Path) -> Path:
 
 
 def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
-    """Write ``errors.png``, ``worst.png`` (if ``auto`` ran) and ``measured.json`` into ``out``."""
+    """Write ``errors.png``, ``worst.png``, ``estimates.png`` (if ``auto`` reported estimates) and ``measured.json`` into ``out``."""
     from brdfrig.fit.brdffile import jsonable
     from brdfrig._atomic import write_bytes as atomic_write_bytes
 
@@ -287,8 +324,8 @@ def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     paths = [plot_errors(result, out / "errors.png")]
     worst = plot_worst(result, out / "worst.png", AUTO if AUTO in result.models else result.models[0])
-    if worst is not None:
-        paths.append(worst)
+    estimates = plot_estimates(result, out / "estimates.png")
+    paths += [p for p in (worst, estimates) if p is not None]
     paths.append(atomic_write_bytes(out / "measured.json", json.dumps(jsonable(result_to_json(result)), indent=1).encode()))
     (out / PARTIAL_JSON).unlink(missing_ok=True)
     return paths
