@@ -51,19 +51,26 @@ def test_loso_picks_the_model_that_relights_where_heldout_pixels_pick_the_wrong_
     assert 0.5 <= loso["lobe"] / true["lobe"] <= 2.0
 
 
-def test_spread_split_recovers_independent_errors():
-    """Predictions = truth + independent errors of known size (2%, 4%, 8%, 20%): the pairwise split
-    recovers each within 15% (no truth given); a parametric candidate that reproduces the held-out
-    pixels best is the anchor and the others' estimates are their distances to it."""
-    rng = np.random.default_rng(3)
+def _with_errors(sizes: dict[str, float], seed: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A seeded truth (5 lightings, 2000 pixels, RGB) and, per name, the truth plus an independent Gaussian
+    error of relative RMS exactly ``sizes[name]``."""
+    rng = np.random.default_rng(seed)
     truth = rng.uniform(0.5, 1.5, size=(5, 2000, 3))
-    weights = np.ones(2000)
     scale = math.sqrt(float(np.mean(np.sum(truth**2, axis=(1, 2)))))
-    sizes = {"diffuse": 0.2, "lobe": 0.08, "bivariate": 0.04, "full": 0.02}
     preds = {}
     for m, e in sizes.items():
         noise = rng.standard_normal(truth.shape)
         preds[m] = truth + e * scale * noise / math.sqrt(float(np.mean(np.sum(noise**2, axis=(1, 2)))))
+    return truth, preds
+
+
+def test_spread_split_recovers_independent_errors():
+    """Predictions = truth + independent errors of known size (2%, 4%, 8%, 20%): the pairwise split
+    recovers each within 15% (no truth given); a parametric candidate that reproduces the held-out
+    pixels best is the anchor and the others' estimates are their distances to it."""
+    sizes = {"diffuse": 0.2, "lobe": 0.08, "bivariate": 0.04, "full": 0.02}
+    truth, preds = _with_errors(sizes, seed=3)
+    weights = np.ones(truth.shape[1])
     held = dict.fromkeys(sizes, 0.001)
     est = spread_estimates(preds, weights, held)
     for m, e in sizes.items():
@@ -84,14 +91,8 @@ def test_table_estimate_is_the_calibrated_spread():
     error above the calibrated value is its floor."""
     c, b = SPREAD_CALIBRATION["bivariate+prior"]
     assert (c, b) == (0.25, 0.5)
-    rng = np.random.default_rng(5)
-    truth = rng.uniform(0.5, 1.5, size=(5, 2000, 3))
-    scale = math.sqrt(float(np.mean(np.sum(truth**2, axis=(1, 2)))))
     sizes = {"diffuse": 0.2, "lobe": 0.08, "full": 0.02, "bivariate+prior": 0.09}
-    preds = {}
-    for m, e in sizes.items():
-        noise = rng.standard_normal(truth.shape)
-        preds[m] = truth + e * scale * noise / math.sqrt(float(np.mean(np.sum(noise**2, axis=(1, 2)))))
+    _, preds = _with_errors(sizes, seed=5)
     est = spread_estimates(preds, np.ones(2000), dict.fromkeys(sizes, 0.001))
     assert est["bivariate+prior"].value == pytest.approx(0.075, rel=0.08)
     assert "calibrated" in est["bivariate+prior"].detail
