@@ -134,3 +134,38 @@ def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--noise", "nan",
                            "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "--noise" in proc.stderr
+
+
+def _case(material: str, model: str, error: float, estimate: float | None = None) -> dict:
+    return {"material": material, "model": model, "chosen_model": "lobe" if model == "auto" else model, "scenes": 1,
+            "noise": 0.0, "held_out": False, "errors": {"ennis": error}, "fit_seconds": 1.0, "estimate": estimate,
+            "failure": None}
+
+
+def _run(cases: list[dict], models: list[str]) -> dict:
+    names = sorted({c["material"] for c in cases})
+    return {"setup": {"size": 16, "fit_probe": "grace", "relight_probes": ["ennis"], "env_rows": 16, "scene_counts": [1],
+                      "noises": [0.0], "models": models},
+            "materials": [{"name": n, "path": None, "held_out": False} for n in names], "cases": cases}
+
+
+def test_summary_counts_picks_only_against_models_that_ran_and_estimates_within_2x(tmp_path):
+    """Three materials: auto at 1.05x, 1.2x and 0.9x of the other model's error, estimates at 1.9x, 0.4x and
+    none: 2 of 3 picks within 1.1x, 1 of 2 reported estimates within 2x.  Auto alone: no pick is claimed.
+    The estimates figure is written, and not when no estimate was reported."""
+    from brdfrig.evaluate.measured_report import format_summary, plot_estimates, result_from_json, summarize
+
+    cases = [_case("a", "auto", 0.105, 0.1995), _case("a", "diffuse", 0.1),
+             _case("b", "auto", 0.12, 0.048), _case("b", "diffuse", 0.1),
+             _case("c", "auto", 0.09), _case("c", "diffuse", 0.1)]
+    both = result_from_json(_run(cases, ["auto", "diffuse"]))
+    row = next(r for r in summarize(both) if r["model"] == "auto")
+    assert (row["auto_within_1.1x_of_best"], row["auto_compared"]) == (2, 3)
+    assert (row["estimates_within_2x"], row["estimates_reported"]) == (1, 2)
+    assert "within 1.1x of best on 2/3; estimate within 2x on 1/2 reported" in format_summary(both)
+    alone = result_from_json(_run([c for c in cases if c["model"] == "auto"], ["auto"]))
+    text = format_summary(alone)
+    assert "no other model to compare; estimate within 2x on 1/2 reported" in text and "of best" not in text
+    assert plot_estimates(both, tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    none = result_from_json(_run([c | {"estimate": None} for c in cases], ["auto", "diffuse"]))
+    assert plot_estimates(none, tmp_path / "n.png") is None and not (tmp_path / "n.png").exists()

@@ -74,19 +74,22 @@ def summarize(result: MeasuredResult) -> list[dict]:
 
 
 def _auto_quality(mats: dict) -> dict:
-    picks, estimates, n_est = 0, 0, 0
+    """``auto``'s picks (materials where other models ran too) and estimates (within :data:`ESTIMATE_FACTOR`)."""
+    picks, compared, estimates, n_est = 0, 0, 0, 0
     for by_model in mats.values():
         auto = by_model.get(AUTO)
         others = [c.error for m, c in by_model.items() if m != AUTO and math.isfinite(c.error)]
         if auto is None or auto.failure:
             continue
-        if not others or auto.error <= PICK_RTOL * min(others) + 1e-12:
-            picks += 1
+        if others:
+            compared += 1
+            picks += auto.error <= PICK_RTOL * min(others) + 1e-12
         if auto.estimate is not None:
             n_est += 1
             ratio = auto.estimate / auto.error if auto.error > 0 else (1.0 if auto.estimate == 0 else math.inf)
             estimates += 1 / ESTIMATE_FACTOR <= ratio <= ESTIMATE_FACTOR
-    return {"auto_within_1.1x_of_best": picks, "estimates_reported": n_est, "estimates_within_2x": estimates}
+    return {"auto_within_1.1x_of_best": picks, "auto_compared": compared, "estimates_reported": n_est,
+            "estimates_within_2x": estimates}
 
 
 def _pct(x) -> str:
@@ -131,8 +134,9 @@ def format_summary(result: MeasuredResult) -> str:
         extra = "".join(f"  {_pct(r[p]['median']).strip():>7}/{_pct(r[p]['worst']).strip():<8}" for p in others)
         note = ""
         if r["model"] == AUTO:
-            note = (f"within {PICK_RTOL}x of best on {r['auto_within_1.1x_of_best']}/{r['n']}; estimate within "
-                    f"{ESTIMATE_FACTOR:g}x on {r['estimates_within_2x']}/{r['estimates_reported']} reported")
+            picks = (f"within {PICK_RTOL}x of best on {r['auto_within_1.1x_of_best']}/{r['auto_compared']}; "
+                     if r["auto_compared"] else "no other model to compare; ")
+            note = f"{picks}estimate within {ESTIMATE_FACTOR:g}x on {r['estimates_within_2x']}/{r['estimates_reported']} reported"
         fit_s = "-" if r["fit_seconds_median"] is None else f"{r['fit_seconds_median']:.2f}"
         if r["failed"]:
             note = f"{r['failed']} FAILED; " + note
