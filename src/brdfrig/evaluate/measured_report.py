@@ -241,6 +241,7 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, NullFormatter, PercentFormatter
 
     from brdfrig.report.figures import save_png
 
@@ -264,6 +265,10 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
     ax.fill_between(line, line / ESTIMATE_FACTOR, line * ESTIMATE_FACTOR, color="0.85", zorder=0)
     ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel=f"measured relighting error ({result.setup.relight_probes[0]})",
            ylabel="reported estimate", title=f"auto: estimate vs measured (band: within {ESTIMATE_FACTOR:g}x)")
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(PercentFormatter(1.0, decimals=0))
+        axis.set_minor_formatter(NullFormatter())
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
