@@ -73,6 +73,12 @@ def summarize(result: MeasuredResult) -> list[dict]:
     return rows
 
 
+def _estimate_within(case) -> bool:
+    """The case's reported estimate is within :data:`ESTIMATE_FACTOR` of its measured error."""
+    ratio = case.estimate / case.error if case.error > 0 else (1.0 if case.estimate == 0 else math.inf)
+    return 1 / ESTIMATE_FACTOR <= ratio <= ESTIMATE_FACTOR
+
+
 def _auto_quality(mats: dict) -> dict:
     """``auto``'s picks (materials where other models ran too) and estimates (within :data:`ESTIMATE_FACTOR`)."""
     picks, compared, estimates, n_est = 0, 0, 0, 0
@@ -86,8 +92,7 @@ def _auto_quality(mats: dict) -> dict:
             picks += auto.error <= PICK_RTOL * min(others) + 1e-12
         if auto.estimate is not None:
             n_est += 1
-            ratio = auto.estimate / auto.error if auto.error > 0 else (1.0 if auto.estimate == 0 else math.inf)
-            estimates += 1 / ESTIMATE_FACTOR <= ratio <= ESTIMATE_FACTOR
+            estimates += _estimate_within(auto)
     return {"auto_within_1.1x_of_best": picks, "auto_compared": compared, "estimates_reported": n_est,
             "estimates_within_2x": estimates}
 
@@ -251,7 +256,7 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
     fig, ax = plt.subplots(figsize=(5.2, 5.0))
     for k, (scenes, noise) in enumerate(sorted({(c.scenes, c.noise) for c in cases})):
         group = [c for c in cases if (c.scenes, c.noise) == (scenes, noise)]
-        inside = sum(1 / ESTIMATE_FACTOR <= c.estimate / c.error <= ESTIMATE_FACTOR for c in group)
+        inside = sum(_estimate_within(c) for c in group)
         for held, fill in ((False, "none"), (True, None)):
             pts = [(c.error, c.estimate) for c in group if c.held_out == held]
             if pts:
