@@ -37,6 +37,8 @@ that are rendered once and recombined for free:
   pass per ``alpha`` renders the moments and every IOR or conductor colour is a matrix product.
   Lobes narrower than a cell use the sharp-lobe quadrature (:mod:`brdfrig.fit.quadrature`,
   :func:`brdfrig.fit.pbr.lobe_rule` with :data:`FIT_SUBCELL_WIDTH`; MATH.md pitfall 9).
+  The moments are memoised by the content of the pixels and the lighting (:data:`MOMENTS_MEMO`), so
+  the dielectric and conductor searches of one ``auto`` fit share their ``alpha`` grid's passes.
 
 Search bounds: ``alpha`` in :data:`ALPHA_BOUNDS`, fuzz alpha in :data:`FUZZ_ALPHA_BOUNDS`, IOR in
 :data:`IOR_BOUNDS`; an optimum on a bound is reported (``at_bound``, ``determined``).
@@ -44,8 +46,10 @@ Search bounds: ``alpha`` in :data:`ALPHA_BOUNDS`, fuzz alpha in :data:`FUZZ_ALPH
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
+from collections import OrderedDict
 
 import numba
 import numpy as np
@@ -100,6 +104,10 @@ for the sharpest lobes, the renders differing by about 1e-3 (the search's own to
 DB_MAX = 0.45
 """Upper bound of the retro amplitude ``dB = base B(s)`` (``B < 0.45`` for every ``s``)."""
 LOBE_MIN_FRACTION = 1e-3
+MOMENTS_MEMO = 48
+"""Lobe-moment renders kept by :meth:`_Data.moments` (one is N x C x (FRESNEL_DEGREE + 1) floats, 0.6 MB at
+2000 pixels): the dielectric and the conductor searches of one ``auto`` fit render the same ``alpha`` grid on
+the same pixels, and a search's final solve re-renders its optimum."""
 
 
 _SCHLICK = (_legendre_fit(lambda c: 1 - (1 - c) ** 5), _legendre_fit(lambda c: (1 - c) ** 5),
@@ -111,11 +119,11 @@ def _lobe_moments_kernel(alpha, fuzz_t, q, normals, degree):
     """``sum_j L_j m(i,o) lobe(alpha) P_d(2 cos_d - 1) cos_i`` per pixel, channel and degree ``d``, view +z.
 
     Samples: :func:`brdfrig.fit.quadrature.lobe_samples` of ``q``; ``m = min(fuzz_t(cos_i), fuzz_t(cos_o))``
-    with ``fuzz_t`` a layered row holding the fuzz table.
+    with ``fuzz_t`` the fuzz transmission table (:data:`TABLE_SIZE` nodes).
     """
     n_pix, nc = normals.shape[0], q.wrad.shape[1]
     out = np.zeros((n_pix, nc, degree + 1))
-    off = LAYERED_HEAD + TABLE_SIZE
+    off = 0
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         if nz <= 0.0:
@@ -167,6 +175,23 @@ def _hat_kernel(normals, dirs, weighted, view):
     return out
 
 
+_moments_memo: OrderedDict = OrderedDict()
+"""``(geometry digest, alpha, lobe rule, fuzz table bytes)`` -> unweighted lobe moments (:data:`MOMENTS_MEMO` kept)."""
+
+
+def _digest(normals: np.ndarray, env: Environment) -> bytes:
+    """Content digest of pixel normals and a lighting: what the lobe moments depend on besides ``alpha`` and the fuzz table."""
+    h = hashlib.blake2b(digest_size=16)
+    parts = [normals, env.dirs, env.radiance, env.solid_angle]
+    if env.latlong is not None:
+        parts += [env.latlong.image, env.latlong.rotation]
+    for a in parts:
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        h.update(repr(a.shape).encode())
+        h.update(a.tobytes())
+    return h.digest()
+
+
 class _Data:
     """A pixel set's weighted target and the renders shared by every evaluation of the search."""
 
@@ -178,8 +203,8 @@ class _Data:
         self.cos_o = np.concatenate([n[:, 2] for n in self.normals])
         self.hats = np.concatenate([_hat_kernel(*_kernel_inputs(n, e, (0.0, 0.0, 1.0))) for n, e in zip(self.normals, envs)])
         self.hats *= self.sqrt_w[:, None, None, None]
+        self.geometry = [_digest(n, e) for n, e in zip(self.normals, envs)]
         self.renders = 1
-        self._moments: dict = {}
         self._quadratures: dict = {}
 
     def base(self, t: np.ndarray) -> np.ndarray:
@@ -188,14 +213,19 @@ class _Data:
         return np.einsum("nckr,k->ncr", self.hats, t) * scale[:, None, None]
 
     def moments(self, alpha: float, fuzz_row: np.ndarray) -> np.ndarray:
-        """Weighted Fresnel moments (N, C, FRESNEL_DEGREE + 1) of the GGX lobe (last one kept)."""
-        key = (alpha, fuzz_row.tobytes())
-        if key not in self._moments:
-            parts = [_lobe_moments_kernel(alpha, fuzz_row, self.quadrature(e, alpha), np.ascontiguousarray(n), FRESNEL_DEGREE)
-                     for n, e in zip(self.normals, self.envs)]
-            self._moments = {key: np.concatenate(parts) * self.sqrt_w[:, None, None]}
-            self.renders += 1
-        return self._moments[key]
+        """Weighted Fresnel moments (N, C, FRESNEL_DEGREE + 1) of the GGX lobe, memoised by content (:data:`MOMENTS_MEMO`)."""
+        fuzz_t = np.ascontiguousarray(fuzz_row[LAYERED_HEAD + TABLE_SIZE : LAYERED_HEAD + 2 * TABLE_SIZE])
+        parts = []
+        for n, e, g in zip(self.normals, self.envs, self.geometry):
+            key = (g, float(alpha), lobe_rule(alpha, e, FIT_SUBCELL_WIDTH), fuzz_t.tobytes())
+            if key not in _moments_memo:
+                _moments_memo[key] = _lobe_moments_kernel(alpha, fuzz_t, self.quadrature(e, alpha), np.ascontiguousarray(n), FRESNEL_DEGREE)
+                self.renders += 1
+                if len(_moments_memo) > MOMENTS_MEMO:
+                    _moments_memo.popitem(last=False)
+            _moments_memo.move_to_end(key)
+            parts.append(_moments_memo[key])
+        return np.concatenate(parts) * self.sqrt_w[:, None, None]
 
     def quadrature(self, env: Environment, alpha: float):
         """The sharp-lobe quadrature of ``env`` for a lobe of ``alpha`` (:func:`brdfrig.fit.pbr.lobe_rule`), cached."""
@@ -311,7 +341,6 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
         if not fuzz:
             return None
         if fa not in fuzz_cols:
-            fuzz_cols.clear()
             fuzz_cols[fa] = data.fuzz(fa)
         return fuzz_cols[fa]
 
