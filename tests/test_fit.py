@@ -60,7 +60,8 @@ def test_one_scene_lambertian_relights_within_half_percent(probes, noise):
 
 @pytest.mark.parametrize("noise", [0.0, 0.01])
 def test_one_scene_ggx_relights_within_eight_percent(probes, noise):
-    _, test_env, normals, _, truth, scenes = _one_scene(probes, 96, GGX(**GGX_MATERIAL), noise)
+    # 48 px: auto makes the same choice (microfacet) as at 96 px and relights at <= 0.1% either way (a third faster)
+    _, test_env, normals, _, truth, scenes = _one_scene(probes, 48, GGX(**GGX_MATERIAL), noise)
     auto = fit_brdf(scenes, lmax=8, pmax=8, progress=False)
     chosen = _determined_choice(auto)
     assert chosen not in ("full", "full+prior")
