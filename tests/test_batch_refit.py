@@ -31,6 +31,8 @@ N_SESSIONS = 4
 N_KILLED = 20
 """Sessions of the worker-kill test (the issue's 20); the other tests use the first N_SESSIONS."""
 PRESET = ["--model", "diffuse", "--lmax", "3"]
+BATCH = [*PRESET, "--no-figures"]
+"""Batch refits skip the figures and HTML report (the single refit they are compared with draws them)."""
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +100,7 @@ def _check_batch(root: Path, lib_path: Path, count: int = N_SESSIONS) -> None:
 def test_batch_on_a_local_cluster_equals_single_refits(stored, tmp_path):
     root = _fresh(stored, tmp_path)
     lib = tmp_path / "lib.sqlite"
-    r = _brdfrig("refit", "--batch", root, "--workers", "2", "--library", lib, "--no-progress", *PRESET)
+    r = _brdfrig("refit", "--batch", root, "--workers", "2", "--library", lib, "--no-progress", *BATCH)
     assert r.returncode == 0, r.stderr
     assert f"{N_SESSIONS} session(s) refit, 0 failed" in r.stdout
     _check_batch(root, lib)
@@ -106,6 +108,9 @@ def test_batch_on_a_local_cluster_equals_single_refits(stored, tmp_path):
     shutil.copytree(stored / "s1", alone)
     r = _brdfrig("refit", alone, "--library", lib, "--no-progress", *PRESET)
     assert r.returncode == 0, r.stderr
+    drawn = sorted(p.name for p in (alone / "results" / "fit-001").iterdir() if p.suffix in (".png", ".html"))
+    assert drawn == ["glossy.png", "matte.png", "report.html"]
+    assert not [p for p in (root / "s1" / "results" / "fit-001").iterdir() if p.suffix in (".png", ".html")]
     for sample in ("matte", "glossy"):
         a = _coefficients(alone / "results" / "fit-001" / f"{sample}.brdf.json")
         b = _coefficients(root / "s1" / "results" / "fit-001" / f"{sample}.brdf.json")
@@ -125,7 +130,7 @@ def test_a_killed_worker_costs_nothing(stored, tmp_path):
     root = _fresh(stored, tmp_path, N_KILLED)
     lib = tmp_path / "lib.sqlite"
     p = subprocess.Popen([sys.executable, "-m", "brdfrig", "refit", "--batch", str(root), "--workers", "2",
-                          "--library", str(lib), "--no-progress", *PRESET],
+                          "--library", str(lib), "--no-progress", *BATCH],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     killed = None
     deadline = time.monotonic() + 120
@@ -162,7 +167,7 @@ def test_batch_on_a_separately_started_scheduler(stored, tmp_path):
         procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "2",
                                        "--nthreads", "1", "--no-dashboard"], stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL))
-        r = _brdfrig("refit", "--batch", root, "--scheduler", address, "--library", lib, "--no-progress", *PRESET)
+        r = _brdfrig("refit", "--batch", root, "--scheduler", address, "--library", lib, "--no-progress", *BATCH)
         assert r.returncode == 0, r.stderr
         _check_batch(root, lib)
     finally:

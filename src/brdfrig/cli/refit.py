@@ -38,6 +38,8 @@ def register(subparsers) -> None:
     parser.add_argument("--lmax", type=BANDS.arg(), help=f"lighting band limit{BANDS.text()}")
     parser.add_argument("--pmax", type=BANDS.arg(), help=f"outgoing band limit (full model){BANDS.text()}")
     parser.add_argument("--solver", choices=FIT_SOLVERS)
+    parser.add_argument("--no-figures", action="store_true",
+                        help="write the BRDF files and stats.json only, no PNG figures or HTML report (faster batches)")
     add_progress_argument(parser)
     add_library_argument(parser)
     parser.set_defaults(func=run)
@@ -75,14 +77,14 @@ def run(args) -> int:
     with open_library(args) as library:
         if args.batch is not None:
             result = refit_batch(args.batch, _overrides(args), library=library, workers=args.workers,
-                                 scheduler=args.scheduler, progress=not args.no_progress)
+                                 scheduler=args.scheduler, progress=not args.no_progress, figures=not args.no_figures)
             print(_batch_table(result))
             print(f"{len(result.done)} session(s) refit, {len(result.failed)} failed, in {result.seconds:.1f} s")
             return 0 if not result.failed else 2
         open_verified(args.dir)  # refuses a session whose files fail their checksums, before anything else
         with on_disk_full(f"free some space, then run `brdfrig refit {args.dir}` again"):
             refit = refit_session(args.dir, preset_for(args.dir, _overrides(args)), progress=not args.no_progress,
-                                  echo=lambda t: print(t, flush=True))
+                                  echo=lambda t: print(t, flush=True), figures=not args.no_figures)
         record(library, refit)
     print(f"results in {refit.results_dir}")
     return 0

@@ -77,7 +77,7 @@ def _committed(session_dir: Path, batch_id: str) -> Path | None:
 
 
 def refit_session(session_dir, fit: FitPreset | None = None, *, progress: bool = False,
-                  echo: Callable[[str], None] = print, batch_id: str | None = None) -> SessionRefit:
+                  echo: Callable[[str], None] = print, batch_id: str | None = None, figures: bool = True) -> SessionRefit:
     """Verify a stored session and fit it again under its writer lock; return the summary.
 
     Parameters
@@ -90,6 +90,8 @@ def refit_session(session_dir, fit: FitPreset | None = None, *, progress: bool =
         Progress bars on stderr; where the pipeline's lines go.
     batch_id : str or None
         Batch this refit belongs to; a results directory this batch committed already is reused.
+    figures : bool
+        Write the PNG figures and the HTML report (False: BRDF files and ``stats.json`` only).
     """
     from brdfrig.session.pipeline import run_pipeline
     from brdfrig.session.store import SessionStore
@@ -100,7 +102,7 @@ def refit_session(session_dir, fit: FitPreset | None = None, *, progress: bool =
         done = _committed(session_dir, batch_id) if batch_id else None
         if done is not None:
             return _summary(session_dir, done, time.perf_counter() - t0, reused=True)
-        result = run_pipeline(session_dir, fit, progress=progress, echo=echo, batch_id=batch_id)
+        result = run_pipeline(session_dir, fit, progress=progress, echo=echo, figures=figures, batch_id=batch_id)
     return _summary(session_dir, result.results_dir, time.perf_counter() - t0, reused=False)
 
 
@@ -130,10 +132,10 @@ def preset_for(session_dir, overrides: dict | None) -> FitPreset | None:
     return fit_preset_from_dict({**asdict(own), **overrides}, "the fit options")
 
 
-def _task(session_dir: str, overrides: dict | None, batch_id: str) -> SessionRefit:
+def _task(session_dir: str, overrides: dict | None, batch_id: str, figures: bool) -> SessionRefit:
     """What one Dask task runs (a module-level function: workers import it by name)."""
     return refit_session(session_dir, preset_for(session_dir, overrides), progress=False, echo=lambda _line: None,
-                         batch_id=batch_id)
+                         batch_id=batch_id, figures=figures)
 
 
 def _client(workers: int, scheduler: str | None):
@@ -146,7 +148,7 @@ def _client(workers: int, scheduler: str | None):
 
 
 def refit_batch(root, overrides: dict | None = None, *, library: Library, workers: int = 2,
-                scheduler: str | None = None, progress: bool = True) -> BatchResult:
+                scheduler: str | None = None, progress: bool = True, figures: bool = True) -> BatchResult:
     """Refit every session below ``root`` as one Dask task each, recording each fit in ``library``.
 
     Parameters
@@ -163,6 +165,8 @@ def refit_batch(root, overrides: dict | None = None, *, library: Library, worker
         Address of a running Dask scheduler (``tcp://host:8786``) instead of a local cluster.
     progress : bool
         A progress bar over tasks on stderr.
+    figures : bool
+        Each session's PNG figures and HTML report (False: BRDF files and ``stats.json`` only).
     """
     import sys
 
@@ -175,7 +179,7 @@ def refit_batch(root, overrides: dict | None = None, *, library: Library, worker
     t0 = time.perf_counter()
     client, cluster = _client(workers, scheduler)
     try:
-        futures = {client.submit(_task, str(s), overrides, batch_id, key=f"refit-{batch_id}-{i}", pure=False,
+        futures = {client.submit(_task, str(s), overrides, batch_id, figures, key=f"refit-{batch_id}-{i}", pure=False,
                                  retries=TASK_RETRIES): s for i, s in enumerate(sessions)}
         bar = tqdm(total=len(futures), desc="refit", unit="session", file=sys.stderr, disable=not progress,
                    dynamic_ncols=True)
