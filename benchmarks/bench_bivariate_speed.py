@@ -17,7 +17,6 @@ non-negative least squares a user would write, without smoothness, lambda choice
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 import time
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 
+from benchmarks.bench_fit_speed import _load
 from brdfrig.evaluate.measured import DEFAULT_CACHE_DIR, CaseSetup, find_materials, make_cache, render_truth
 from brdfrig.fit import bivariate
 from brdfrig.fit.fitter import fit_brdf
@@ -77,13 +77,6 @@ def format_table(name: str, size: int, times: list[float], rows: int, design_s: 
         f"{name:>16} {size:>5} {len(times):>4} {med:>9.3f} {min(times):>7.3f} {max(times):>7.3f} {TARGET_S:>8.1f} {rows:>6} "
         f"{d:>8.3f} {s:>7.3f} {med / (d + s):>6.2f}",
     ])
-
-
-def _load() -> str:
-    try:
-        return " ".join(f"{v:.2f}" for v in os.getloadavg())
-    except OSError:
-        return "unknown"
 
 
 def main(argv: list[str] | None = None) -> int:

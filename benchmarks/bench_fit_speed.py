@@ -12,7 +12,7 @@ builds them, with its functions: the GGX sphere :data:`brdfrig.evaluate.bench.TR
 
 Printed: per case, the median / min / max wall time of ``fit_brdf`` over the runs (one untimed warm-up
 first: numba and cached tables), the median of each stage of ``FitReport.stage_seconds``
-(:data:`brdfrig.fit.fitter.STAGES`), and a peer measured in the same run: LAPACK's SVD-based least squares
+(:data:`brdfrig.fit.stream.STAGES`), and a peer measured in the same run: LAPACK's SVD-based least squares
 (``numpy.linalg.lstsq``, ``gelsd``; the answer of the joint solver) of the dense, column-equilibrated
 design of as many random usable pixels as the fit used (the design assembled by ``brdfrig.fit.system``
 outside the timing: the peer's time is the dense solve alone, all channels, one BLAS thread as in
@@ -33,7 +33,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from brdfrig.evaluate.bench import FULL, QUICK, TRUTH, _resample, rotate_environment
-from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG, STAGES, fit_brdf
+from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG, fit_brdf
+from brdfrig.fit.stream import STAGES
 from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.scene import Environment, Scene
 from brdfrig.fit.shproject import project_environment
@@ -111,7 +112,7 @@ def format_tables(results: dict[int, dict], size: int, lmax: int) -> str:
         peer = statistics.median(r["peer"]) if r["peer"] else math.nan
         lines.append(f"{count:>6} {len(t):>4} {statistics.median(t):>9.3f} {min(t):>7.3f} {max(t):>7.3f} {target:>8} "
                      f"{r['rows']:>7} {peer:>7.3f} {statistics.median(t) / peer:>6.2f}")
-    lines += ["", "median seconds per stage (brdfrig.fit.fitter.STAGES):"]
+    lines += ["", "median seconds per stage (brdfrig.fit.stream.STAGES):"]
     head = f"{'scenes':>6} " + " ".join(f"{s:>15}" for s in STAGES)
     lines += [head, "-" * len(head)]
     for count, r in results.items():
@@ -153,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs < 1 or args.peer_runs < 0:
         raise SystemExit("--runs must be >= 1 and --peer-runs >= 0")
 
-    from brdfrig.cli.bench import DEFAULT_PROBES, MAP_ROWS, _box_downsample, _environment
+    from brdfrig.cli.bench import DEFAULT_PROBES, MAP_ROWS, _box_downsample
+    from brdfrig.lighting import environment_from_latlong
     from brdfrig.hdr.exr import read_image
     from brdfrig.hdr.sphere import sphere_pixels
 
@@ -161,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     if not probes:
         raise SystemExit(f"no lat-long probe in {DEFAULT_PROBES}")
     rows = MAP_ROWS["quick" if args.quick else "full"]
-    fit_env = _environment(_box_downsample(np.asarray(read_image(probes[0]), np.float64)[..., :3], rows))
+    fit_env = environment_from_latlong(_box_downsample(np.asarray(read_image(probes[0]), np.float64)[..., :3], rows))
 
     def sphere(size: int):
         px = sphere_pixels((size, size), (size / 2, size / 2, size / 2))
