@@ -154,7 +154,7 @@ def _merge_kernel(frames, near, times, inv_sat, lo, hi, optimal, inv_well, read_
     for b in nb.prange(nblocks):
         p0 = b * _BLOCK
         p1 = min(p0 + _BLOCK, npix)
-        # Gather the block of every frame once, normalised (contiguous reads, one list lookup per frame).
+        # Gather the block of every frame once, normalised (contiguous reads, one tuple dispatch per frame).
         # A sample near a clipped pixel is gathered as +inf: weighted out like a saturated one.
         zb = np.empty((nfr, p1 - p0, nch), np.float32)
         for k in range(nfr):
@@ -380,14 +380,6 @@ def _times_used(sources, nominal, clip, radius, ratio_tolerance) -> np.ndarray:
     return nominal
 
 
-def _typed_list(arrays) -> "nb.typed.List":
-    """The arrays as a numba typed list: the kernel compiles once per dtype, not once per frame count as for a tuple."""
-    out = nb.typed.List()
-    for a in arrays:
-        out.append(a)
-    return out
-
-
 def _merge_tiles(sources, used, settings: dict, tile_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Radiance, variance and flags as (C, H, W) planes, merged band by band."""
     h, w, c = sources[0].shape
@@ -401,8 +393,8 @@ def _merge_tiles(sources, used, settings: dict, tile_rows: int) -> tuple[np.ndar
         y1 = min(h, y0 + tile_rows)
         bands = [_band(s, y0, y1, settings["clip"], radius, radius > 0) for s in sources]
         rows = [r if same else np.asarray(r, np.float32) / np.float32(s.saturation) for (r, _), s in zip(bands, sources)]
-        flat = _typed_list(np.ascontiguousarray(r).reshape(-1, c) for r in rows)
-        near = _typed_list(m.reshape(-1) for _, m in bands) if radius > 0 else _typed_list([np.empty(0, bool)])
+        flat = tuple(np.ascontiguousarray(r).reshape(-1, c) for r in rows)
+        near = tuple(m.reshape(-1) for _, m in bands) if radius > 0 else (np.empty(0, bool),)
         _merge_kernel(flat, near, used, inv_sat, settings["lo"], settings["clip"], settings["optimal"],
                       settings["inv_well"], settings["read_var"], settings["iterations"],
                       rad[:, y0:y1].reshape(c, -1).T, var[:, y0:y1].reshape(c, -1).T,
