@@ -123,19 +123,18 @@ def _lobe_moments_kernel(alpha, fuzz_t, q, normals, degree):
     """
     n_pix, nc = normals.shape[0], q.wrad.shape[1]
     out = np.zeros((n_pix, nc, degree + 1))
-    off = 0
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         if nz <= 0.0:
             continue
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
-        m_o = table_lookup(fuzz_t, off, nz)
+        m_o = table_lookup(fuzz_t, 0, nz)
         acc = np.zeros((nc, degree + 1))
         leg = np.empty(degree + 1)
         for j in range(dirs.shape[0]):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             lobe, cos_d = ggx_lobe(cos_i, nz, dirs[j, 2], alpha)
-            val = lobe * cos_i * min(m_o, table_lookup(fuzz_t, off, cos_i))
+            val = lobe * cos_i * min(m_o, table_lookup(fuzz_t, 0, cos_i))
             if val == 0.0:
                 continue
             legendre_into(2.0 * cos_d - 1.0, leg)
