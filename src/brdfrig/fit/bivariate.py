@@ -1,46 +1,59 @@
-"""The ``bivariate`` model: a data-driven isotropic BRDF ``rho_c(theta_h, theta_d)`` that one image determines.
+"""The ``bivariate`` model: a data-driven isotropic BRDF tabulated in ``(theta_h, theta_d)`` that one image determines.
 
-Model (Romeiro, Vasilyev & Zickler 2008, "Passive reflectometry"; Romeiro & Zickler 2010): per
-colour channel ``c`` the BRDF depends only on Rusinkiewicz's half-angle ``theta_h`` (between the
-normal and the half vector ``h = (wi + wo) / |wi + wo|``) and difference angle ``theta_d`` (between
-``wi`` and ``h``), not on ``phi_d``::
+Model (after Romeiro, Vasilyev & Zickler 2008, "Passive reflectometry"; Romeiro & Zickler 2010): per
+colour channel ``c`` two tables over Rusinkiewicz's half-angle ``theta_h`` (between the normal and the
+half vector ``h = (wi + wo) / |wi + wo|``) and difference angle ``theta_d`` (between ``wi`` and ``h``),
+joined over the difference azimuth ``phi_d`` (of ``wi`` about ``h``, from the plane of ``n`` and ``h``)::
 
-    rho_c(theta_h, theta_d) = sum_{a, b} x_c[a, b] hat_a(u) hat_b(t),
+    rho_c = P_c(theta_h, theta_d) cos^2 phi_d + Q_c(theta_h, theta_d) sin^2 phi_d,
+    P_c = sum_{a, b} p_c[a, b] hat_a(u) hat_b(t),   Q_c likewise with q_c,
     u = sqrt(theta_h / (pi/2)) (nh - 1),   t = theta_d / (pi/2) (nd - 1)
 
-with piecewise-linear hats on the integer nodes of ``u`` and ``t``: ``theta_h`` nodes are
-sqrt-spaced like MERL's (``(a / (nh - 1))^2 * 90`` degrees; at
-``nh = 24`` the first nodes are at 0.17, 0.68, 1.5 degrees: fine near the specular peak), ``theta_d`` nodes uniform.  In cosines (isotropy):
-``cos theta_d = sqrt((1 + wi.wo) / 2)`` and ``cos theta_h = (cos_i + cos_o) / (2 cos theta_d)``.
+``P`` (``table``) is the BRDF with the light in the plane of ``n`` and ``h``, ``Q`` (``cross``) across it;
+``cos^2`` and ``sin^2`` are the lowest terms isotropy and reciprocity allow (``rho`` is even in ``phi_d``
+and has period ``pi``), and ``P, Q >= 0`` make ``rho >= 0`` everywhere.  ``(P + Q) / 2`` is the mean over
+``phi_d``: Romeiro's bivariate table.  Piecewise-linear hats on the integer nodes of ``u`` and ``t``:
+``theta_h`` nodes are sqrt-spaced like MERL's (``(a / (nh - 1))^2 * 90`` degrees; at ``nh = 24`` the first
+nodes are at 0.17, 0.68, 1.5 degrees: fine near the specular peak), ``theta_d`` nodes uniform.  In cosines
+(isotropy): ``cos theta_d = sqrt((1 + wi.wo) / 2)`` and ``cos theta_h = (cos_i + cos_o) / (2 cos theta_d)``.
 
-The rendered sphere is LINEAR in the node values: pixel ``n`` (view ``v = (0, 0, 1)``) has the
-design row ``A[n, (a, b)] = sum_j L_jc dOmega_j cos_i hat_a(u_j) hat_b(t_j)`` over the quadrature
-samples ``j`` of the lighting.  Per channel the fit solves::
+The rendered sphere is LINEAR in the node values ``x = [p, q]`` (``2 K``, ``K = nh nd``): pixel ``n``
+(view ``v = (0, 0, 1)``) has the design row ``A[n, (a, b)] = sum_j L_jc dOmega_j cos_i cos^2(phi_d,j)
+hat_a(u_j) hat_b(t_j)`` for ``p`` (``sin^2`` for ``q``) over the quadrature samples ``j`` of the lighting.
+Per channel the fit solves::
 
-    min_x ||W^(1/2) (A x - y)||^2 + lam ||D x||^2,   x >= 0,   (optionally) x[a, b] >= x[a + 1, b]
+    min_x ||W^(1/2) (A x - y)||^2 + lam x^T G x,   x >= 0,   (optionally) p[a, b] >= p[a + 1, b], q likewise
 
-with ``D`` the second differences along both grid axes (in node index: the sqrt spacing lets a
-sharp peak stay smooth in ``u``; the ``theta_d`` rows weighted :data:`D_WEIGHT`).  Monotone decrease in ``theta_h`` is a reparametrisation,
-``x[a, b] = sum_{a' >= a} z[a', b]`` with ``z >= 0`` (non-negative decrements: non-negativity
-follows), solved by NNLS on the Cholesky factor of the regularised normal matrix.
+with the regulariser ``G`` (:func:`regulariser`): second differences ``D`` of the mean ``(p + q) / 2``
+along both grid axes (in node index: the sqrt spacing lets a sharp peak stay smooth in ``u``; the
+``theta_d`` rows weighted :data:`D_WEIGHT`), those of the ``phi_d`` term ``(p - q) / 2``
+(:data:`PHI_SMOOTHING`), and a ridge on that term (:data:`PHI_RIDGE`; :data:`PHI_PIN` where ``theta_h`` or
+``theta_d`` is 0 and ``phi_d`` is undefined).  Monotone decrease in ``theta_h`` is a reparametrisation,
+``p[a, b] = sum_{a' >= a} z[a', b]`` with ``z >= 0`` (non-negative decrements: non-negativity follows;
+``q`` likewise), solved by NNLS on the Cholesky factor of the regularised normal matrix.
+
+Why the ``phi_d`` term: a ``phi_d``-free table cannot reproduce the parts of a real material's image that
+depend on ``phi_d`` (grazing light across the plane of incidence); fitted to them, it bends its peak rows
+and relights badly.  Measured in docs/DESIGN.md (History).
 
 Steps (:func:`fit_bivariate`):
 
 - pixels: a subsample of at most ``max_pixels`` fit pixels plus a disjoint quarter as many check
   pixels (:func:`brdfrig.fit.microfacet._subsample`), streamed through the design in blocks of
-  :data:`BLOCK_PIXELS`; each block updates a per-channel QR factor ``R`` (``K x K``) of the
+  :data:`BLOCK_PIXELS`; each block updates a per-channel QR factor ``R`` (``2K x 2K``) of the
   weighted design and ``Q^T y``;
-- smoothness ``lam``: ``lam_rel * ||R||_F^2 / ||D||_F^2`` with ``lam_rel`` on a log grid
+- smoothness ``lam``: ``lam_rel`` times the ratio of the data's and ``D^T D``'s traces for a
+  ``phi_d``-free table (``p = q``), with ``lam_rel`` on a log grid
   (:data:`LAMBDA_GRID`); per channel, the unconstrained Tikhonov solution's weighted error on
   the check pixels picks ``lam_rel`` (floored at :data:`LAMBDA_MIN`);
-- prior (optional, the ``bivariate+prior`` model): the smoothness term becomes ``||D (x - x0)||^2`` with
-  ``x0`` another fit's node values (:func:`project_to_nodes`, its mean over ``phi_d``), ``lam_rel`` from
+- prior (optional, the ``bivariate+prior`` model): the regulariser applies to ``x - x0`` with ``x0``
+  another fit's node values (:func:`project_to_nodes`), ``lam_rel`` from
   :data:`PRIOR_LAMBDA_GRID`: the nodes the image observes follow the data, the others the prior;
 - constraints: the non-negative and the monotone (+ non-negative) solutions at that ``lam``;
   the monotone one is kept unless the check pixels prefer the other by more than
   :data:`MONOTONE_MAX_LOSS` (summed over channels: "where the data support it");
 - identifiability: node ``(a, b)`` is *observed* in channel ``c`` when its data weight
-  ``diag(R^T R)`` exceeds the regulariser's there, ``lam diag(D^T D)``; the other nodes are
+  ``diag(R^T R)`` exceeds the regulariser's there, ``lam diag(G)`` (both summed over ``p`` and ``q``); the other nodes are
   filled by the regulariser (smooth continuation of the observed ones).  Reported per node.
 
 Grazing ``theta_d``: the design weights of nodes near 90 degrees vanish with ``cos_i``; there the
@@ -48,10 +61,11 @@ second differences continue the table linearly and the constraints keep it non-n
 non-increasing in ``theta_h``); values are finite everywhere.
 
 Measured (one scene, 96 px sphere, fit under grace 128 x 64, relit under ennis 128 x 64, noise-free,
-relative RMS; defaults; ``fit_microfacet`` beside it): rgl/acrylic_felt_green 12.4% (microfacet 40.7%),
-rgl/paper_blue 11.3% (15.6%), rgl/irid_flake_paint1 22.5% (32.5%), rgl/satin_blue 14.9% (6.4%).  One
-image leaves the table ill-determined: with the smoothness at the check pixels' choice (``lam_rel`` ~ 1e-6)
-the felt reproduced its own image to 0.9% and relit at 65-135%.
+relative RMS; defaults; all 59 measured materials): median 8.6%, 90th percentile 28.3% (``bivariate+prior``
+7.7% / 19.3%; ``microfacet`` 10.5% / 31.0%); rgl/acrylic_felt_white 1.6%, rgl/paper_blue 6.0%,
+rgl/satin_blue 6.9%, rgl/vch_silk_blue 6.8%.  One image leaves the table ill-determined where the lighting
+is dim: with the smoothness at the check pixels' free choice (``lam_rel`` ~ 1e-6) a felt reproduced its own
+image to 0.9% and relit at 65-135% (hence :data:`LAMBDA_MIN`).
 """
 
 from __future__ import annotations
@@ -93,10 +107,18 @@ more.  Measured on rgl/acrylic_felt_green (96 px, grace -> ennis, 1500 px, 24 x 
 relighting error 65% / 52% / 34% / 18% / 14% at ``lam_rel`` = 1e-4 / 1e-3 / 1e-2 / 0.1 / 1, own-image
 residual 0.9% -> 1.8%; with ``D_WEIGHT`` 10 at 0.1 / 0.3 / 1: felt 14.7% / 12.4% / 17.8%, rgl/paper_blue
 14.9% / 11.3% / 11.5%, rgl/irid_flake_paint1 22.5% / 22.5% / 25.8%."""
-PRIOR_LAMBDA_GRID = tuple(10.0 ** np.arange(0.5, 3.0, 0.5))
-"""Candidate ``lam_rel`` with a prior (smoothness of the deviation from it; the check pixels choose).  Measured on
-14 rgl materials (96 px, grace -> ennis, all pixels, prior = the parametric fit with the smallest check error,
-``lam_rel >= 3`` vs ``>= 30``): median relighting error 8.4% vs 9.7%, worst 56% vs 147%; without a prior 12.7%."""
+PRIOR_LAMBDA_GRID = tuple(10.0 ** np.arange(-0.5, 3.0, 0.5))
+"""Candidate ``lam_rel`` with a prior (smoothness of the deviation from it; the check pixels choose), from the
+floor of the plain fit up.  Measured (96 px, grace -> ennis, ``bivariate+prior`` inside ``fit_brdf``), grid from
+``lam_rel`` 3 / 0.3 / 0.03: rgl/vch_silk_blue 24.7% / 19.9% / 20.0%, rgl/acrylic_felt_white 6.6 / 3.1 / 5.9,
+rgl/chm_orange 6.8 / 6.6 / 7.2, rgl/cc_amber_citrine 14.3 in all three."""
+PHI_SMOOTHING = 1.0
+"""Weight of the second differences of the ``cos 2 phi_d`` term, ``(table - cross) / 2``, relative to those of the mean."""
+PHI_RIDGE = 1e-2
+"""Weight of ``||(table - cross) / 2||^2`` (relative to the mean diagonal of ``D^T D``): the two tables part only as far as
+the pixels ask."""
+PHI_PIN = 1e3
+"""The same weight at the nodes of ``theta_h = 0`` and ``theta_d = 0``, where ``phi_d`` is undefined."""
 PRIOR_PHI_SAMPLES = 36
 """``phi_d`` samples of :func:`project_to_nodes`."""
 MONOTONE_MAX_LOSS = 0.02
@@ -127,15 +149,32 @@ def _node_coords(cos_i: float, cos_o: float, cos_io: float, nh: int, nd: int) ->
     return a, min(u - a, 1.0), b, min(t - b, 1.0)
 
 
+@numba.njit(cache=True, fastmath=False)
+def _cos2_phi_d(nx: float, ny: float, nz: float, wx: float, wy: float, wz: float) -> float:
+    """``cos^2 phi_d`` of light ``w`` at normal ``n`` seen from ``v = (0, 0, 1)`` (0.5 where ``phi_d`` is undefined).
+
+    ``phi_d`` is the azimuth of ``w`` about the half vector ``h`` from the plane of ``n`` and ``h``.  Its sine
+    is ``w . b / sin theta_d`` with ``b = n x h / |n x h|``; since ``h`` is along ``u = w + v``,
+    ``w . (n x u) = w . (n x v)``, ``|n x u|^2 = |u|^2 - (n . u)^2`` and ``sin^2 theta_d = (1 - w . v) / 2``.
+    """
+    sin2_d = 0.5 * (1.0 - wz)
+    cross2 = 2.0 * (1.0 + wz) - (nx * wx + ny * wy + nz * wz + nz) ** 2
+    if sin2_d < 1e-12 or cross2 < 1e-12:
+        return 0.5
+    t = wx * ny - wy * nx
+    return min(max(1.0 - t * t / (cross2 * sin2_d), 0.0), 1.0)
+
+
 @numba.njit(cache=True, fastmath=False, parallel=True)
 def _design_kernel(normals: np.ndarray, q: LobeQuadrature, nh: int, nd: int) -> np.ndarray:
-    """Design block (N, nh * nd, C): node ``a * nd + b`` of pixel ``i``, channel ``c`` (module docstring).
+    """Design block (N, 2 nh nd, C): node ``a * nd + b`` of the in-plane table, then of the cross table.
 
     Quadrature samples per pixel from :func:`brdfrig.fit.quadrature.lobe_samples` (view ``(0, 0, 1)``).
     """
     n_pix = normals.shape[0]
     nc = q.wrad.shape[1]
-    out = np.zeros((n_pix, nh * nd, nc))
+    nk = nh * nd
+    out = np.zeros((n_pix, 2 * nk, nc))
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         if nz <= 0.0:
@@ -145,25 +184,32 @@ def _design_kernel(normals: np.ndarray, q: LobeQuadrature, nh: int, nd: int) -> 
         for j in range(dirs.shape[0]):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             a, fu, b, ft = _node_coords(cos_i, nz, dirs[j, 2], nh, nd)
+            c2 = _cos2_phi_d(nx, ny, nz, dirs[j, 0], dirs[j, 1], dirs[j, 2])
             k = a * nd + b
             w00 = (1.0 - fu) * (1.0 - ft) * cos_i
             w01 = (1.0 - fu) * ft * cos_i
             w10 = fu * (1.0 - ft) * cos_i
             w11 = fu * ft * cos_i
+            kq = k + nk
             for c in range(nc):
-                lw = wrad[j, c]
-                row[k, c] += lw * w00
-                row[k + 1, c] += lw * w01
-                row[k + nd, c] += lw * w10
-                row[k + nd + 1, c] += lw * w11
+                lp = wrad[j, c] * c2
+                lq = wrad[j, c] - lp
+                row[k, c] += lp * w00
+                row[k + 1, c] += lp * w01
+                row[k + nd, c] += lp * w10
+                row[k + nd + 1, c] += lp * w11
+                row[kq, c] += lq * w00
+                row[kq + 1, c] += lq * w01
+                row[kq + nd, c] += lq * w10
+                row[kq + nd + 1, c] += lq * w11
     return out
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _render_kernel(normals: np.ndarray, q: LobeQuadrature, table: np.ndarray) -> np.ndarray:
-    """Radiance (N, C) of the table (C, nh, nd), same quadrature as :func:`_design_kernel`."""
+def _render_kernel(normals: np.ndarray, q: LobeQuadrature, tables: np.ndarray) -> np.ndarray:
+    """Radiance (N, C) of the tables (2, C, nh, nd) (in-plane, cross), same quadrature as :func:`_design_kernel`."""
     n_pix = normals.shape[0]
-    nc, nh, nd = table.shape
+    _, nc, nh, nd = tables.shape
     out = np.zeros((n_pix, nc))
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
@@ -173,10 +219,17 @@ def _render_kernel(normals: np.ndarray, q: LobeQuadrature, table: np.ndarray) ->
         for j in range(dirs.shape[0]):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             a, fu, b, ft = _node_coords(cos_i, nz, dirs[j, 2], nh, nd)
+            c2 = _cos2_phi_d(nx, ny, nz, dirs[j, 0], dirs[j, 1], dirs[j, 2])
+            w00 = (1.0 - fu) * (1.0 - ft)
+            w01 = (1.0 - fu) * ft
+            w10 = fu * (1.0 - ft)
+            w11 = fu * ft
             for c in range(nc):
-                t = table[c]
-                rho = (1.0 - fu) * ((1.0 - ft) * t[a, b] + ft * t[a, b + 1]) + fu * ((1.0 - ft) * t[a + 1, b] + ft * t[a + 1, b + 1])
-                out[i, c] += wrad[j, c] * rho * cos_i
+                tp = tables[0, c]
+                tq = tables[1, c]
+                rho_p = w00 * tp[a, b] + w01 * tp[a, b + 1] + w10 * tp[a + 1, b] + w11 * tp[a + 1, b + 1]
+                rho_q = w00 * tq[a, b] + w01 * tq[a, b + 1] + w10 * tq[a + 1, b] + w11 * tq[a + 1, b + 1]
+                out[i, c] += wrad[j, c] * (rho_q + c2 * (rho_p - rho_q)) * cos_i
     return out
 
 
@@ -201,70 +254,109 @@ def theta_d_nodes(nd: int) -> np.ndarray:
 
 @register_model("bivariate")
 class BivariateBRDF:
-    """Isotropic BRDF tabulated on (theta_h, theta_d) nodes, bilinear in ``(sqrt theta_h, theta_d)`` (module docstring).
+    """Isotropic BRDF tabulated on (theta_h, theta_d) nodes, bilinear in ``(sqrt theta_h, theta_d)``, with its
+    ``phi_d`` dependence as ``rho = table cos^2 phi_d + cross sin^2 phi_d`` (module docstring).
 
     Implements :class:`brdfrig.fit.brdf.FittedBRDF`.
 
     Parameters
     ----------
     table : (C, nh, nd) array_like
-        Node values of ``rho`` (1/sr), finite and non-negative; ``nh, nd >= 2``.
+        Node values of ``rho`` (1/sr) with the light in the plane of the normal and the half vector
+        (``phi_d = 0``), finite and non-negative; ``nh, nd >= 2``.
+    cross : (C, nh, nd) array_like, optional
+        The same across that plane (``phi_d = 90`` degrees); default ``table`` (no ``phi_d`` dependence).
     """
 
     model = "bivariate"
 
-    def __init__(self, table) -> None:
+    def __init__(self, table, cross=None) -> None:
         t = np.asarray(table, dtype=np.float64)
+        x = t if cross is None else np.asarray(cross, dtype=np.float64)
         if t.ndim != 3 or t.shape[1] < 2 or t.shape[2] < 2 or t.shape[0] < 1:
             raise ValueError(f"bivariate table must have shape (C, nh >= 2, nd >= 2), got {t.shape}")
-        if not np.all(np.isfinite(t)):
-            raise ValueError("bivariate table has non-finite values")
-        if np.any(t < 0):
-            raise ValueError(f"bivariate table has {int(np.sum(t < 0))} negative value(s)")
-        self.table = np.ascontiguousarray(t)
+        if x.shape != t.shape:
+            raise ValueError(f"bivariate cross table has shape {x.shape}, the table {t.shape}")
+        for name, v in (("table", t), ("cross table", x)):
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"bivariate {name} has non-finite values")
+            if np.any(v < 0):
+                raise ValueError(f"bivariate {name} has {int(np.sum(v < 0))} negative value(s)")
+        self.tables = np.ascontiguousarray(np.stack([t, x]))
+
+    @property
+    def table(self) -> np.ndarray:
+        """In-plane node values (C, nh, nd) (1/sr)."""
+        return self.tables[0]
+
+    @property
+    def cross(self) -> np.ndarray:
+        """Cross-plane node values (C, nh, nd) (1/sr)."""
+        return self.tables[1]
 
     @property
     def channels(self) -> int:
-        return self.table.shape[0]
+        return self.tables.shape[1]
 
-    def rho_hd(self, theta_h, theta_d) -> np.ndarray:
-        """``rho`` (1/sr) at half and difference angles (radians, clipped to [0, pi/2]); shape ``broadcast + (C,)``."""
+    def rho_hd(self, theta_h, theta_d, phi_d=None) -> np.ndarray:
+        """``rho`` (1/sr) at half and difference angles (radians, clipped to [0, pi/2]); shape ``broadcast + (C,)``.
+
+        ``phi_d`` None: the mean over ``phi_d``, ``(table + cross) / 2``.
+        """
         th, td = np.broadcast_arrays(*(np.clip(np.asarray(a, dtype=np.float64), 0.0, HALF_PI) for a in (theta_h, theta_d)))
-        _, nh, nd = self.table.shape
+        _, _, nh, nd = self.tables.shape
         u = np.sqrt(th / HALF_PI) * (nh - 1)
         t = td / HALF_PI * (nd - 1)
         a = np.minimum(u.astype(np.int64), nh - 2)
         b = np.minimum(t.astype(np.int64), nd - 2)
         fu, ft = (u - a)[..., None], (t - b)[..., None]
-        tab = np.moveaxis(self.table, 0, -1)  # (nh, nd, C)
-        return (1 - fu) * ((1 - ft) * tab[a, b] + ft * tab[a, b + 1]) + fu * ((1 - ft) * tab[a + 1, b] + ft * tab[a + 1, b + 1])
+
+        def lookup(table):
+            tab = np.moveaxis(table, 0, -1)  # (nh, nd, C)
+            return (1 - fu) * ((1 - ft) * tab[a, b] + ft * tab[a, b + 1]) + fu * ((1 - ft) * tab[a + 1, b] + ft * tab[a + 1, b + 1])
+
+        if phi_d is None:
+            return lookup(0.5 * (self.tables[0] + self.tables[1]))
+        c2 = (np.cos(np.asarray(phi_d, dtype=np.float64)) ** 2)[..., None]
+        return c2 * lookup(self.tables[0]) + (1.0 - c2) * lookup(self.tables[1])
 
     def evaluate(self, theta_i, theta_o, delta_phi) -> np.ndarray:
         """BRDF ``rho`` (1/sr), shape ``broadcast(theta_i, theta_o, delta_phi).shape + (C,)``; 0 below the horizon."""
         ti, to, dp = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_i, theta_o, delta_phi)))
-        ci, co = np.cos(ti), np.cos(to)
-        cio = np.sin(ti) * np.sin(to) * np.cos(dp) + ci * co
-        cd = np.sqrt(np.clip(0.5 * (1.0 + cio), 0.0, 1.0))
-        ch = np.clip((ci + co) / np.maximum(2.0 * cd, 1e-300), 0.0, 1.0)
-        out = self.rho_hd(np.arccos(ch), np.arccos(cd))
-        below = (ci < -1e-12) | (co < -1e-12)
+        wi = np.stack([np.sin(ti) * np.cos(dp), np.sin(ti) * np.sin(dp), np.cos(ti)], axis=-1)
+        wo = np.stack([np.sin(to), np.zeros_like(to), np.cos(to)], axis=-1)
+        h = wi + wo
+        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
+        ch = np.clip(h[..., 2], 0.0, 1.0)
+        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+        # phi_d: azimuth of wi about h from the plane of n = (0, 0, 1) and h
+        b = np.stack([-h[..., 1], h[..., 0], np.zeros_like(ch)], axis=-1)  # n x h
+        bn = np.linalg.norm(b, axis=-1)
+        b = np.where(bn[..., None] > 1e-9, b / np.maximum(bn, 1e-300)[..., None], 0.0)
+        p = np.cross(b, h)
+        c, s = np.sum(wi * p, axis=-1), np.sum(wi * b, axis=-1)
+        phi = np.where(c * c + s * s > 1e-18, np.arctan2(s, c), 0.25 * math.pi)
+        out = self.rho_hd(np.arccos(ch), np.arccos(cd), phi)
+        below = (np.cos(ti) < -1e-12) | (np.cos(to) < -1e-12)
         return np.where(below[..., None], 0.0, out)
 
     def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
         """Radiance (N, C) seen from ``v = (0, 0, 1)``: the fit's own quadrature of the rendering integral."""
         if env.channels != self.channels:
             raise ValueError(f"BRDF has {self.channels} channels but the environment has {env.channels}")
-        return _render_kernel(_normals(normals), lobe_quadrature(env), self.table)
+        return _render_kernel(_normals(normals), lobe_quadrature(env), self.tables)
 
     def to_dict(self) -> dict:
-        return {"model": self.model, "nh": int(self.table.shape[1]), "nd": int(self.table.shape[2]), "table": self.table.tolist()}
+        return {"model": self.model, "nh": int(self.tables.shape[2]), "nd": int(self.tables.shape[3]),
+                "table": self.table.tolist(), "cross": self.cross.tolist()}
 
     @classmethod
     def from_dict(cls, d: dict) -> "BivariateBRDF":
-        table = np.asarray(d["table"], dtype=np.float64)
-        if table.ndim != 3 or table.shape[1:] != (int(d["nh"]), int(d["nd"])):
-            raise ValueError(f"bivariate 'table' has shape {table.shape}, expected (C, nh={d['nh']}, nd={d['nd']})")
-        return cls(table)
+        tables = [np.asarray(d[key], dtype=np.float64) for key in ("table", "cross") if key in d]
+        for key, table in zip(("table", "cross"), tables):
+            if table.ndim != 3 or table.shape[1:] != (int(d["nh"]), int(d["nd"])):
+                raise ValueError(f"bivariate {key!r} has shape {table.shape}, expected (C, nh={d['nh']}, nd={d['nd']})")
+        return cls(*tables)
 
 
 def second_differences(nh: int, nd: int, d_weight: float = 1.0) -> np.ndarray:
@@ -290,36 +382,41 @@ def second_differences(nh: int, nd: int, d_weight: float = 1.0) -> np.ndarray:
 
 
 def cumulative_operator(nh: int, nd: int) -> np.ndarray:
-    """``T`` (nh nd, nh nd) with ``x = T z``: ``x[a, b] = sum_{a' >= a} z[a', b]`` (monotone reparametrisation)."""
+    """``T`` (2 nh nd, 2 nh nd) with ``x = T z``: ``x[a, b] = sum_{a' >= a} z[a', b]`` in each of the two tables
+    (monotone reparametrisation)."""
     upper = np.triu(np.ones((nh, nh)))
-    return np.kron(upper, np.eye(nd))
+    return np.kron(np.eye(2), np.kron(upper, np.eye(nd)))
 
 
 class _Channel:
     """One channel's regularised problem: ``G = R^T R``, ``g = R^T Q^T y``, data norm, the check pixels' rows.
 
-    ``prior`` (K,): node values the smoothness term pulls the table toward, ``||D (x - prior)||^2``
-    (zeros: plain smoothness).
+    ``reg`` (2K, 2K): the regulariser (:func:`regulariser`), applied to ``x - prior``; ``prior`` (2K,): node
+    values the table is pulled toward (zeros: plain smoothness).  ``lam = lam_rel * scale`` with ``scale``
+    the ratio of the data's and ``D^T D``'s traces for a table without ``phi_d`` dependence (``dtd_trace``:
+    the trace of ``D^T D``), so ``lam_rel`` weighs the mean table's smoothness as in a ``phi_d``-free fit.
     """
 
     def __init__(self, r: np.ndarray, z: np.ndarray, yy: float, check_rows: np.ndarray, check_y: np.ndarray,
-                 dtd: np.ndarray, prior: np.ndarray) -> None:
+                 reg: np.ndarray, prior: np.ndarray, dtd_trace: float) -> None:
         self.g_mat = r.T @ r
         self.g = r.T @ z
         self.yy = yy
         self.check_rows, self.check_y = check_rows, check_y
-        self.dtd = dtd
-        self.dtd_prior = dtd @ prior
-        self.scale = float(np.trace(self.g_mat) / max(float(np.trace(dtd)), 1e-300))
+        self.reg = reg
+        self.reg_prior = reg @ prior
+        k = len(self.g) // 2
+        mean_trace = np.trace(self.g_mat[:k, :k]) + np.trace(self.g_mat[k:, k:]) + 2.0 * np.trace(self.g_mat[:k, k:])
+        self.scale = float(mean_trace / max(dtd_trace, 1e-300))
 
     def hessian(self, lam_rel: float) -> np.ndarray:
-        """Regularised normal matrix ``G + lam D^T D`` (+ a 1e-12 ridge keeping it positive definite)."""
+        """Regularised normal matrix ``R^T R + lam reg`` (+ a 1e-12 ridge keeping it positive definite)."""
         lam = lam_rel * self.scale
-        return self.g_mat + lam * self.dtd + 1e-12 * max(self.scale, 1e-300) * np.eye(len(self.g))
+        return self.g_mat + lam * self.reg + 1e-12 * max(self.scale, 1e-300) * np.eye(len(self.g))
 
     def rhs(self, lam_rel: float) -> np.ndarray:
-        """Right-hand side of the regularised normal equations, ``g + lam D^T D prior``."""
-        return self.g + lam_rel * self.scale * self.dtd_prior
+        """Right-hand side of the regularised normal equations, ``g + lam reg prior``."""
+        return self.g + lam_rel * self.scale * self.reg_prior
 
     def check_error(self, x: np.ndarray) -> float:
         """Weighted squared error of ``x`` on the check pixels."""
@@ -351,7 +448,7 @@ def _stream(scenes: list[Scene], picks: list[np.ndarray], nh: int, nd: int, chan
     """
     from brdfrig.fit.solvers import StreamedQR
 
-    qr = StreamedQR(nh * nd, channels)
+    qr = StreamedQR(2 * nh * nd, channels)
     yy = np.zeros(channels)
     for s, p in zip(scenes, picks):
         q = lobe_quadrature(s.env, **quad)
@@ -375,7 +472,7 @@ def _check_system(scenes: list[Scene], picks: list[np.ndarray], nh: int, nd: int
         blocks.append(_design(lobe_quadrature(s.env, **quad), np.asarray(s.normals)[p], nh, nd) * sw[:, None, None])
         targets.append(np.asarray(s.radiance, dtype=np.float64)[p] * sw[:, None])
     if not blocks:
-        return np.zeros((0, nh * nd, scenes[0].radiance.shape[1])), np.zeros((0, scenes[0].radiance.shape[1]))
+        return np.zeros((0, 2 * nh * nd, scenes[0].radiance.shape[1])), np.zeros((0, scenes[0].radiance.shape[1]))
     return np.concatenate(blocks), np.concatenate(targets)
 
 
@@ -388,12 +485,14 @@ def _choose_lambda(ch: _Channel, grid: tuple[float, ...]) -> tuple[float, list[f
 
 
 def project_to_nodes(brdf, nh: int, nd: int, phi_samples: int = PRIOR_PHI_SAMPLES) -> np.ndarray:
-    """Node values (C, nh, nd) of any BRDF: its mean over ``phi_d`` at each node's (theta_h, theta_d).
+    """Node values (2, C, nh, nd) of any BRDF: in-plane and cross tables fitted to it over ``phi_d``.
 
-    ``brdf.evaluate(theta_i, theta_o, delta_phi)`` is sampled at ``phi_samples`` midpoints of
-    [0, pi] (isotropy and reciprocity cover the rest), ``theta_d`` capped at 89 degrees; directions
-    within 1e-3 of the horizon are left out of the mean, and a node with none left takes the value of
-    the node below it in ``theta_h``.
+    At each node's (theta_h, theta_d), ``brdf.evaluate(theta_i, theta_o, delta_phi)`` is sampled at
+    ``phi_samples`` midpoints of [0, pi] (isotropy and reciprocity cover the rest), ``theta_d`` capped at
+    89 degrees, and ``table cos^2 phi_d + cross sin^2 phi_d`` is fitted by least squares; directions within
+    1e-3 of the horizon are left out.  A node whose samples leave the two apart (fewer than a quarter of
+    them left) takes their mean for both, one with none left the values of the node below it in
+    ``theta_h``.  Negative values are clipped to 0.
     """
     phi = (np.arange(phi_samples) + 0.5) / phi_samples * math.pi
     th, td, pd = np.meshgrid(theta_h_nodes(nh), np.minimum(theta_d_nodes(nd), math.radians(89.0)), phi, indexing="ij")
@@ -402,12 +501,23 @@ def project_to_nodes(brdf, nh: int, nd: int, phi_samples: int = PRIOR_PHI_SAMPLE
     vals = np.zeros(th.shape + (brdf.channels,))
     dphi = np.arctan2(wo[..., 1], wo[..., 0]) - np.arctan2(wi[..., 1], wi[..., 0])
     vals[ok] = np.asarray(brdf.evaluate(np.arccos(wi[..., 2][ok]), np.arccos(wo[..., 2][ok]), dphi[ok]), dtype=np.float64)
+    vals = np.nan_to_num(vals)
     count = ok.sum(axis=2)
+    c2 = np.where(ok, np.cos(pd) ** 2, 0.0)
+    s2 = np.where(ok, 1.0 - np.cos(pd) ** 2, 0.0)
+    # normal equations of the two-term fit per node
+    g11, g12, g22 = (c2 * c2).sum(2), (c2 * s2).sum(2), (s2 * s2).sum(2)
+    r1, r2 = (c2[..., None] * vals).sum(2), (s2[..., None] * vals).sum(2)
+    det = g11 * g22 - g12**2
+    split = (count >= phi_samples // 4) & (det > 1e-9 * np.maximum(g11 + g22, 1e-300) ** 2)
+    safe = np.where(split, det, 1.0)[..., None]
     mean = vals.sum(axis=2) / np.maximum(count, 1)[..., None]
+    table = np.where(split[..., None], (g22[..., None] * r1 - g12[..., None] * r2) / safe, mean)
+    cross = np.where(split[..., None], (g11[..., None] * r2 - g12[..., None] * r1) / safe, mean)
     for a in range(1, nh):
         empty = count[a] == 0
-        mean[a, empty] = mean[a - 1, empty]
-    return np.ascontiguousarray(np.moveaxis(np.maximum(np.nan_to_num(mean), 0.0), -1, 0))
+        table[a, empty], cross[a, empty] = table[a - 1, empty], cross[a - 1, empty]
+    return np.ascontiguousarray(np.maximum(np.stack([np.moveaxis(table, -1, 0), np.moveaxis(cross, -1, 0)]), 0.0))
 
 
 def _check_options(nh: int, nd: int, max_pixels: int, prior) -> None:
@@ -419,13 +529,33 @@ def _check_options(nh: int, nd: int, max_pixels: int, prior) -> None:
         raise ValueError(f"prior must be a fitted BRDF with evaluate(), got {type(prior).__name__}")
 
 
-def _problems(qr, yy: np.ndarray, check_rows: np.ndarray, check_y: np.ndarray, nh: int, nd: int, prior):
-    """``D^T D`` and the per-channel problems (:class:`_Channel`) of the streamed QR factors, toward ``prior``'s nodes."""
-    channels = len(yy)
+def regulariser(nh: int, nd: int) -> np.ndarray:
+    """Regulariser (2K, 2K) of the node values ``x = [table, cross]`` (``K = nh nd``; module docstring).
+
+    With ``m = (table + cross) / 2`` (the mean over ``phi_d``) and ``r = (table - cross) / 2`` (its
+    ``cos 2 phi_d`` term): ``||D m||^2 + PHI_SMOOTHING ||D r||^2 + PHI_RIDGE ||r||^2``, plus
+    :data:`PHI_PIN` ``||r||^2`` on the nodes at ``theta_h = 0`` or ``theta_d = 0``, where ``phi_d`` is
+    undefined (isotropy: ``r = 0`` there).  ``D``: :func:`second_differences` with :data:`D_WEIGHT`.
+    """
+    k = nh * nd
     diff = second_differences(nh, nd, D_WEIGHT)
     dtd = diff.T @ diff
-    x0 = np.zeros((channels, nh * nd)) if prior is None else project_to_nodes(prior, nh, nd).reshape(channels, -1)
-    return dtd, [_Channel(qr.r[c], qr.z[c], float(yy[c]), check_rows[:, :, c], check_y[:, c], dtd, x0[c]) for c in range(channels)]
+    eye = np.eye(k)
+    mean_op, diff_op = 0.5 * np.hstack([eye, eye]), 0.5 * np.hstack([eye, -eye])
+    a, b = np.divmod(np.arange(k), nd)
+    pin = np.where((a == 0) | (b == 0), PHI_PIN, 0.0) * (np.trace(dtd) / k)
+    ridge = PHI_RIDGE * np.trace(dtd) / k + pin
+    return mean_op.T @ dtd @ mean_op + diff_op.T @ (PHI_SMOOTHING * dtd + np.diag(ridge)) @ diff_op
+
+
+def _problems(qr, yy: np.ndarray, check_rows: np.ndarray, check_y: np.ndarray, nh: int, nd: int, prior):
+    """The regulariser and the per-channel problems (:class:`_Channel`) of the streamed QR factors, toward ``prior``'s nodes."""
+    channels = len(yy)
+    reg = regulariser(nh, nd)
+    diff = second_differences(nh, nd, D_WEIGHT)
+    dtd_trace = float(np.sum(diff**2))
+    x0 = np.zeros((channels, 2 * nh * nd)) if prior is None else np.moveaxis(project_to_nodes(prior, nh, nd), 0, 1).reshape(channels, -1)
+    return reg, [_Channel(qr.r[c], qr.z[c], float(yy[c]), check_rows[:, :, c], check_y[:, c], reg, x0[c], dtd_trace) for c in range(channels)]
 
 
 def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: bool | None, transform: np.ndarray, norm: float):
@@ -449,13 +579,15 @@ def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: b
     return lams, lam_errors, x, bool(use_monotone), check_err
 
 
-def _identifiability(problems: list[_Channel], lams: list[float], dtd: np.ndarray, nh: int, nd: int, prior: bool) -> dict:
-    """Report entries: per node, data weight ``diag(R^T R)`` against the regulariser's ``lam diag(D^T D)``.
+def _identifiability(problems: list[_Channel], lams: list[float], reg: np.ndarray, nh: int, nd: int, prior: bool) -> dict:
+    """Report entries: per node, data weight ``diag(R^T R)`` against the regulariser's ``lam diag(reg)``, both
+    summed over the node's in-plane and cross values.
 
     With a prior the unobserved nodes follow it, so the table counts as determined.
     """
-    data_w = np.stack([np.diag(ch.g_mat) for ch in problems])  # (C, K)
-    reg_w = np.stack([lam * ch.scale * np.diag(dtd) for lam, ch in zip(lams, problems)])
+    k = nh * nd
+    data_w = np.stack([np.diag(ch.g_mat)[:k] + np.diag(ch.g_mat)[k:] for ch in problems])  # (C, K)
+    reg_w = np.stack([lam * ch.scale * (np.diag(reg)[:k] + np.diag(reg)[k:]) for lam, ch in zip(lams, problems)])
     observed = np.all(data_w > reg_w, axis=0).reshape(nh, nd)
     return {
         "observation": (data_w / np.maximum(data_w.max(axis=1, keepdims=True), 1e-300)).reshape(len(problems), nh, nd).tolist(),
@@ -527,11 +659,12 @@ def fit_bivariate(
     qr, yy = _stream(scenes, fit_picks, nh, nd, channels, quad, bar)
     bar.close()
     check_rows, check_y = _check_system(scenes, check_picks, nh, nd, quad)
-    dtd, problems = _problems(qr, yy, check_rows, check_y, nh, nd, prior)
+    reg, problems = _problems(qr, yy, check_rows, check_y, nh, nd, prior)
     grid = tuple(lam for lam in LAMBDA_GRID if lam >= LAMBDA_MIN) if prior is None else PRIOR_LAMBDA_GRID
     norm = max(float(np.sum(check_y**2)), 1e-300)
     lams, lam_errors, x, use_monotone, check_err = _solve_tables(problems, grid, monotone, cumulative_operator(nh, nd), norm)
-    brdf = BivariateBRDF(x.reshape(channels, nh, nd))
+    tables = x.reshape(channels, 2, nh, nd)
+    brdf = BivariateBRDF(tables[:, 0], tables[:, 1])
     report = {
         "model": "bivariate", "nh": nh, "nd": nd,
         "theta_h_nodes_deg": np.degrees(theta_h_nodes(nh)).tolist(),
@@ -539,7 +672,7 @@ def fit_bivariate(
         "lambda_rel": lams, "lambda_check_errors": lam_errors, "monotone": use_monotone,
         "prior": None if prior is None else str(getattr(prior, "model", type(prior).__name__)),
         "check_relative_rms": check_err,
-        **_identifiability(problems, lams, dtd, nh, nd, prior is not None),
+        **_identifiability(problems, lams, reg, nh, nd, prior is not None),
         "relative_rms_residual": math.sqrt(sum(ch.residual(xc) for ch, xc in zip(problems, x)) / max(float(yy.sum()), 1e-300)),
         "pixels_used": int(sum(len(p) for p in fit_picks)), "check_pixels": int(len(check_y)),
         "seconds": time.perf_counter() - t0,
