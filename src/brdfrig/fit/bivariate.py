@@ -62,7 +62,7 @@ non-increasing in ``theta_h``); values are finite everywhere.
 
 Measured (one scene, 96 px sphere, fit under grace 128 x 64, relit under ennis 128 x 64, noise-free,
 relative RMS; defaults; all 59 measured materials): median 8.6%, 90th percentile 28.3% (``bivariate+prior``
-7.7% / 19.3%; ``microfacet`` 10.5% / 31.0%); rgl/acrylic_felt_white 1.6%, rgl/paper_blue 6.0%,
+7.7% / 19.3%; ``microfacet`` 10.5% / 31.4%); rgl/acrylic_felt_white 1.6%, rgl/paper_blue 6.0%,
 rgl/satin_blue 6.9%, rgl/vch_silk_blue 6.8%.  One image leaves the table ill-determined where the lighting
 is dim: with the smoothness at the check pixels' free choice (``lam_rel`` ~ 1e-6) a felt reproduced its own
 image to 0.9% and relit at 65-135% (hence :data:`LAMBDA_MIN`).
