@@ -238,7 +238,7 @@ def _normals(normals) -> np.ndarray:
 
 
 def _design(q: LobeQuadrature, normals: np.ndarray, nh: int, nd: int) -> np.ndarray:
-    """Design rows (N, nh * nd, C) of sphere points with unit ``normals`` under the prepared quadrature ``q``."""
+    """Design rows (N, 2 nh nd, C: the in-plane then the cross nodes) of sphere points with unit ``normals`` under the prepared quadrature ``q``."""
     return _design_kernel(_normals(normals), q, nh, nd)
 
 
@@ -559,7 +559,7 @@ def _problems(qr, yy: np.ndarray, check_rows: np.ndarray, check_y: np.ndarray, n
 
 
 def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: bool | None, transform: np.ndarray, norm: float):
-    """Per-channel ``lam_rel``, the check errors of each, the chosen tables (C, K), monotone or not, and
+    """Per-channel ``lam_rel``, the check errors of each, the chosen node values (C, 2K), monotone or not, and
     the check pixels' relative RMS error of the non-negative and the monotone tables."""
     lams, lam_errors, tables = [], [], {"non_negative": [], "monotone": []}
     for ch in problems:
