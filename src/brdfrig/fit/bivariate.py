@@ -80,7 +80,7 @@ from scipy.optimize import nnls
 from tqdm import tqdm
 
 from brdfrig.fit.brdf import register_model
-from brdfrig.fit.measured import rusinkiewicz_directions
+from brdfrig.fit.measured import _local_angles_to_dirs, rusinkiewicz_coordinates, rusinkiewicz_directions
 from brdfrig.fit.microfacet import _check_scenes, _subsample
 from brdfrig.fit.quadrature import LobeQuadrature, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment, Scene
@@ -322,23 +322,11 @@ class BivariateBRDF:
 
     def evaluate(self, theta_i, theta_o, delta_phi) -> np.ndarray:
         """BRDF ``rho`` (1/sr), shape ``broadcast(theta_i, theta_o, delta_phi).shape + (C,)``; 0 below the horizon."""
-        ti, to, dp = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_i, theta_o, delta_phi)))
-        wi = np.stack([np.sin(ti) * np.cos(dp), np.sin(ti) * np.sin(dp), np.cos(ti)], axis=-1)
-        wo = np.stack([np.sin(to), np.zeros_like(to), np.cos(to)], axis=-1)
-        h = wi + wo
-        h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-300)
-        ch = np.clip(h[..., 2], 0.0, 1.0)
-        cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
-        # phi_d: azimuth of wi about h from the plane of n = (0, 0, 1) and h
-        b = np.stack([-h[..., 1], h[..., 0], np.zeros_like(ch)], axis=-1)  # n x h
-        bn = np.linalg.norm(b, axis=-1)
-        b = np.where(bn[..., None] > 1e-9, b / np.maximum(bn, 1e-300)[..., None], 0.0)
-        p = np.cross(b, h)
-        c, s = np.sum(wi * p, axis=-1), np.sum(wi * b, axis=-1)
-        phi = np.where(c * c + s * s > 1e-18, np.arctan2(s, c), 0.25 * math.pi)
-        out = self.rho_hd(np.arccos(ch), np.arccos(cd), phi)
-        below = (np.cos(ti) < -1e-12) | (np.cos(to) < -1e-12)
-        return np.where(below[..., None], 0.0, out)
+        wi, wo, shape = _local_angles_to_dirs(theta_i, theta_o, delta_phi)
+        th, td, pd = rusinkiewicz_coordinates(wi, wo, np.array([0.0, 0.0, 1.0]))
+        out = self.rho_hd(th, td, pd)
+        below = (wi[:, 2] < -1e-12) | (wo[:, 2] < -1e-12)
+        return np.where(below[:, None], 0.0, out).reshape(shape + (self.channels,))
 
     def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
         """Radiance (N, C) seen from ``v = (0, 0, 1)``: the fit's own quadrature of the rendering integral."""
@@ -352,8 +340,9 @@ class BivariateBRDF:
 
     @classmethod
     def from_dict(cls, d: dict) -> "BivariateBRDF":
-        tables = [np.asarray(d[key], dtype=np.float64) for key in ("table", "cross") if key in d]
-        for key, table in zip(("table", "cross"), tables):
+        keys = ("table", "cross") if "cross" in d else ("table",)
+        tables = [np.asarray(d[key], dtype=np.float64) for key in keys]
+        for key, table in zip(keys, tables):
             if table.ndim != 3 or table.shape[1:] != (int(d["nh"]), int(d["nd"])):
                 raise ValueError(f"bivariate {key!r} has shape {table.shape}, expected (C, nh={d['nh']}, nd={d['nd']})")
         return cls(*tables)
@@ -529,17 +518,15 @@ def _check_options(nh: int, nd: int, max_pixels: int, prior) -> None:
         raise ValueError(f"prior must be a fitted BRDF with evaluate(), got {type(prior).__name__}")
 
 
-def regulariser(nh: int, nd: int) -> np.ndarray:
+def regulariser(dtd: np.ndarray, nd: int) -> np.ndarray:
     """Regulariser (2K, 2K) of the node values ``x = [table, cross]`` (``K = nh nd``; module docstring).
 
     With ``m = (table + cross) / 2`` (the mean over ``phi_d``) and ``r = (table - cross) / 2`` (its
     ``cos 2 phi_d`` term): ``||D m||^2 + PHI_SMOOTHING ||D r||^2 + PHI_RIDGE ||r||^2``, plus
     :data:`PHI_PIN` ``||r||^2`` on the nodes at ``theta_h = 0`` or ``theta_d = 0``, where ``phi_d`` is
-    undefined (isotropy: ``r = 0`` there).  ``D``: :func:`second_differences` with :data:`D_WEIGHT`.
+    undefined (isotropy: ``r = 0`` there).  ``dtd``: ``D^T D`` (K, K) of :func:`second_differences`.
     """
-    k = nh * nd
-    diff = second_differences(nh, nd, D_WEIGHT)
-    dtd = diff.T @ diff
+    k = len(dtd)
     eye = np.eye(k)
     mean_op, diff_op = 0.5 * np.hstack([eye, eye]), 0.5 * np.hstack([eye, -eye])
     a, b = np.divmod(np.arange(k), nd)
@@ -551,11 +538,12 @@ def regulariser(nh: int, nd: int) -> np.ndarray:
 def _problems(qr, yy: np.ndarray, check_rows: np.ndarray, check_y: np.ndarray, nh: int, nd: int, prior):
     """The regulariser and the per-channel problems (:class:`_Channel`) of the streamed QR factors, toward ``prior``'s nodes."""
     channels = len(yy)
-    reg = regulariser(nh, nd)
     diff = second_differences(nh, nd, D_WEIGHT)
-    dtd_trace = float(np.sum(diff**2))
+    dtd = diff.T @ diff
+    reg = regulariser(dtd, nd)
     x0 = np.zeros((channels, 2 * nh * nd)) if prior is None else np.moveaxis(project_to_nodes(prior, nh, nd), 0, 1).reshape(channels, -1)
-    return reg, [_Channel(qr.r[c], qr.z[c], float(yy[c]), check_rows[:, :, c], check_y[:, c], reg, x0[c], dtd_trace) for c in range(channels)]
+    return reg, [_Channel(qr.r[c], qr.z[c], float(yy[c]), check_rows[:, :, c], check_y[:, c], reg, x0[c], float(np.trace(dtd)))
+                 for c in range(channels)]
 
 
 def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: bool | None, transform: np.ndarray, norm: float):
