@@ -92,7 +92,7 @@ def test_bivariate_lobe_relights_under_another_probe(envs):
     noisy = observed * (1 + 0.01 * np.random.default_rng(0).standard_normal(observed.shape))
     brdf, report = _fit(fit_env, normals, noisy, max_pixels=1000)
     err = relative_rms(brdf.predict(test_env, normals), render_tabulated(truth, normals, test_env))
-    assert err < 0.01, err  # measured 0.41% (1% noise; grace -> pisa at 64 x 32)
+    assert err < 0.01, err  # measured 0.44% (1% noise; grace -> pisa at 64 x 32)
     # constraints: non-negative everywhere, non-increasing in theta_h when the monotone table was kept
     assert np.all(brdf.tables >= 0) and np.all(np.isfinite(brdf.tables))
     if report["monotone"]:
@@ -166,7 +166,7 @@ def test_project_to_nodes_of_a_table_and_a_lambertian():
     np.testing.assert_allclose(got[:, :, seen], tables[:, :, seen], rtol=1e-9)
     assert np.all(np.isfinite(got)) and np.all(got >= 0)
     lam = project_to_nodes(Lambertian([0.6, 0.3, 0.1]), 24, 8)
-    np.testing.assert_allclose(lam, np.broadcast_to((np.array([0.6, 0.3, 0.1]) / math.pi)[:, None, None], lam.shape), rtol=1e-9)
+    np.testing.assert_allclose(lam, np.broadcast_to((np.array([0.6, 0.3, 0.1]) / math.pi)[:, None, None], lam.shape), rtol=1e-12)
 
 
 def test_prior_fills_the_nodes_the_lighting_leaves_unobserved(envs):
@@ -188,14 +188,14 @@ def test_prior_fills_the_nodes_the_lighting_leaves_unobserved(envs):
     assert report["prior"] == "bivariate" and report["determined"]
     assert not np.all(report["observed"])  # some nodes are left to the prior
     deviation = np.abs(brdf.tables - nodes) / nodes
-    assert np.median(deviation) < 0.01  # measured 0.36% (largest 6.3%, a grazing node at theta_h = 90 deg)
+    assert np.median(deviation) < 0.01  # measured 0.39% (largest 2.7%)
     reference = render_tabulated(_tabulated(fn), normals, test_env)
-    assert relative_rms(brdf.predict(test_env, normals), reference) < 3e-3  # measured 0.075%
+    assert relative_rms(brdf.predict(test_env, normals), reference) < 3e-3  # measured 0.044%
     half = BivariateBRDF(0.5 * exact.table)
     corrected, _ = _fit(fit_env, normals, observed, prior=half, max_pixels=1000)
     err_prior = relative_rms(half.predict(test_env, normals), reference)
     err_fit = relative_rms(corrected.predict(test_env, normals), reference)
-    assert err_prior > 0.45 and err_fit < 0.01, (err_prior, err_fit)  # measured 50% -> 0.14%
+    assert err_prior > 0.45 and err_fit < 0.01, (err_prior, err_fit)  # measured 50% -> 0.12%
 
 
 def test_fitter_regularises_bivariate_toward_the_best_parametric_candidate(envs):
@@ -218,11 +218,11 @@ def test_fitter_regularises_bivariate_toward_the_best_parametric_candidate(envs)
     assert result.report.to_dict()["candidates"]["bivariate+prior"]["fit_report"]["prior"] == result.brdfs[prior].model
     reference = truth.predict(test_env, normals)
     err = relative_rms(result.brdf.predict(test_env, normals), reference)
-    # the table cannot do better than the truth's own node values (no phi_d, bilinear between nodes)
+    # the table cannot do much better than the truth's own node values (two phi_d terms, bilinear between nodes)
     from brdfrig.fit.bivariate import project_to_nodes
 
     floor = relative_rms(BivariateBRDF(*project_to_nodes(truth, 24, 8)).predict(test_env, normals), reference)
-    assert err < floor + 0.002, (err, floor)  # measured 2.04% against the node values' 2.50%
+    assert err < floor + 0.002, (err, floor)  # measured 2.24% against the node values' 2.57%
 
 
 def test_phi_d_dependence_is_recovered(envs):
