@@ -180,6 +180,9 @@ ROWS: list[Row] = [
         r"exists and --no-clobber is given: nothing written"),
     Row("fit-figure-json", "fit --figure not a PNG",
         ("fit", "--scene", "env.exr", "sphere.exr", "--figure", "f.jpg", "-o", "o.json"), r"writes a PNG figure"),
+    Row("fit-references-garbage", "fit --references a damaged file",
+        ("fit", "--scene", "env.exr", "sphere.exr", "--references", "refs.npz", "-o", "o.json"),
+        r"refs\.npz: unreadable reference tables", setup=lambda ws: (ws / "refs.npz").write_bytes(b"PK\x03\x04 cut short")),
     # -- garbage that used to be written with exit 0 (item 4)
     Row("read-noise-nan", "merge --read-noise nan", (*M, "--read-noise", "nan", "-o", "o.exr"),
         r"argument --read-noise: must be a number in \[0, 10000\], got 'nan'"),

@@ -36,6 +36,9 @@ def register(subparsers) -> None:
     p.add_argument("--solver", choices=SOLVERS, default="joint", help="least-squares solver (default: %(default)s)")
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
+    p.add_argument("--references", default=None, metavar="TABLES.npz",
+                   help="measured materials the bivariate+measured model combines (default: the shipped RGL-EPFL set; "
+                        "build one with python -m brdfrig.fit.references)")
     p.add_argument("--no-estimate", action="store_true",
                    help="skip the relighting estimate of the requested --model and the reference fits it takes "
                         "(faster; 'auto' always estimates, it chooses by it)")
@@ -102,6 +105,7 @@ def run(args) -> int:
     from brdfrig.errors import InputError
     from brdfrig.fit.brdffile import jsonable, save_brdf
     from brdfrig.fit.fitter import fit_brdf
+    from brdfrig.fit.references import ReferenceTables
     from brdfrig.hdr.colour import declared_colour_space
     from brdfrig.fit.report import format_report
     from brdfrig.lighting import read_latlong
@@ -121,6 +125,7 @@ def run(args) -> int:
         report_path = check_output(args.report, sources + [out], suffixes=(".html",), writes="an HTML report",
                                    no_clobber=args.no_clobber, option="--report")
     colour_space = declared_colour_space(sources)  # before any fitting: mixed spaces are refused
+    references = None if args.references is None else ReferenceTables.load(args.references)
     circle = None if args.circle is None else parse_circle(args.circle)
     probe_circle = None if args.probe_circle is None else parse_circle(args.probe_circle, "--probe-circle")
     scenes, inputs, shapes, pixels = [], [], [], []
@@ -140,7 +145,7 @@ def run(args) -> int:
             inputs.append({"lighting": str(env_path), "lighting_kind": kind, "image": str(image_path), "circle": list(used)})
 
     result = fit_brdf(scenes, model=args.model, lmax=args.lmax, pmax=args.pmax, solver=args.solver, progress=not args.no_progress,
-                      estimate=not args.no_estimate)
+                      estimate=not args.no_estimate, reference_tables=references)
     rep = result.report
     say = Printer(args.json)
     say(rep.identifiability_summary)

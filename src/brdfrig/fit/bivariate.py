@@ -49,6 +49,9 @@ Steps (:func:`fit_bivariate`):
 - prior (optional, the ``bivariate+prior`` model): the regulariser applies to ``x - x0`` with ``x0``
   another fit's node values (:func:`project_to_nodes`), ``lam_rel`` from
   :data:`PRIOR_LAMBDA_GRID`: the nodes the image observes follow the data, the others the prior;
+- reference prior (optional, the ``bivariate+measured`` model): ``x0`` is instead, per channel, the
+  non-negative combination of measured materials' tables (:mod:`brdfrig.fit.references`) that best
+  reproduces the pixels (:func:`_reference_prior`), at the fixed :data:`REFERENCE_LAMBDA`;
 - constraints: the non-negative and the monotone (+ non-negative) solutions at that ``lam``;
   the monotone one is kept unless the check pixels prefer the other by more than
   :data:`MONOTONE_MAX_LOSS` (summed over channels: "where the data support it");
@@ -112,6 +115,14 @@ PRIOR_LAMBDA_GRID = tuple(10.0 ** np.arange(-0.5, 3.0, 0.5))
 floor of the plain fit up.  Measured (96 px, grace -> ennis, ``bivariate+prior`` inside ``fit_brdf``), grid from
 ``lam_rel`` 3 / 0.3 / 0.03: rgl/vch_silk_blue 24.7% / 19.9% / 20.0%, rgl/acrylic_felt_white 6.6 / 3.1 / 5.9,
 rgl/chm_orange 6.8 / 6.6 / 7.2, rgl/cc_amber_citrine 14.3 in all three."""
+REFERENCE_LAMBDA = 3.0
+"""``lam_rel`` of the smoothness of the table's deviation from the reference prior (``bivariate+measured``): fixed,
+because the check pixels of the fit's own lighting always prefer the smallest (they cannot see what the lighting
+leaves weakly excited).  Measured in docs/DESIGN.md (History: reference tables)."""
+REFERENCE_RIDGE_GRID = tuple(10.0 ** np.arange(-6.0, 0.5, 1.0))
+"""Candidate ridges ``mu`` of the reference weights (columns of unit rendered energy; the check pixels choose)."""
+REFERENCE_REPORT_TOP = 5
+"""References listed per channel in the fit report."""
 PHI_SMOOTHING = 1.0
 """Weight of the second differences of the ``cos 2 phi_d`` term, ``(table - cross) / 2``, relative to those of the mean."""
 PHI_RIDGE = 1e-2
@@ -380,23 +391,27 @@ def cumulative_operator(nh: int, nd: int) -> np.ndarray:
 class _Channel:
     """One channel's regularised problem: ``G = R^T R``, ``g = R^T Q^T y``, data norm, the check pixels' rows.
 
-    ``reg`` (2K, 2K): the regulariser (:func:`regulariser`), applied to ``x - prior``; ``prior`` (2K,): node
-    values the table is pulled toward (zeros: plain smoothness).  ``lam = lam_rel * scale`` with ``scale``
+    ``reg`` (2K, 2K): the regulariser (:func:`regulariser`), applied to ``x - prior`` with ``prior`` (2K,) the
+    node values the table is pulled toward (:meth:`pull_toward`; zeros until then: plain smoothness).  ``lam = lam_rel * scale`` with ``scale``
     the ratio of the data's and ``D^T D``'s traces for a table without ``phi_d`` dependence (``dtd_trace``:
     the trace of ``D^T D``), so ``lam_rel`` weighs the mean table's smoothness as in a ``phi_d``-free fit.
     """
 
     def __init__(self, r: np.ndarray, z: np.ndarray, yy: float, check_rows: np.ndarray, check_y: np.ndarray,
-                 reg: np.ndarray, prior: np.ndarray, dtd_trace: float) -> None:
+                 reg: np.ndarray, dtd_trace: float) -> None:
         self.g_mat = r.T @ r
         self.g = r.T @ z
         self.yy = yy
         self.check_rows, self.check_y = check_rows, check_y
         self.reg = reg
-        self.reg_prior = reg @ prior
+        self.reg_prior = np.zeros(len(self.g))
         k = len(self.g) // 2
         mean_trace = np.trace(self.g_mat[:k, :k]) + np.trace(self.g_mat[k:, k:]) + 2.0 * np.trace(self.g_mat[:k, k:])
         self.scale = float(mean_trace / max(dtd_trace, 1e-300))
+
+    def pull_toward(self, prior: np.ndarray) -> None:
+        """Apply the regulariser to ``x - prior`` (node values (2K,)) instead of ``x``."""
+        self.reg_prior = self.reg @ prior
 
     def hessian(self, lam_rel: float) -> np.ndarray:
         """Regularised normal matrix ``R^T R + lam reg`` (+ a 1e-12 ridge keeping it positive definite)."""
@@ -509,13 +524,23 @@ def project_to_nodes(brdf, nh: int, nd: int, phi_samples: int = PRIOR_PHI_SAMPLE
     return np.ascontiguousarray(np.maximum(np.stack([np.moveaxis(table, -1, 0), np.moveaxis(cross, -1, 0)]), 0.0))
 
 
-def _check_options(nh: int, nd: int, max_pixels: int, prior) -> None:
+def _grid(nh: int | None, nd: int | None, max_pixels: int, prior, references) -> tuple[int, int]:
+    """``(nh, nd)`` of a fit (default 24 x 8, or the references' grid), its options checked."""
+    default = (DEFAULT_NH, DEFAULT_ND) if references is None else references.grid
+    nh, nd = default[0] if nh is None else nh, default[1] if nd is None else nd
+    if references is not None:
+        if prior is not None:
+            raise ValueError("a fit takes a prior or reference tables, not both")
+        if references.grid != (nh, nd) or len(references) == 0:
+            raise ValueError(f"reference tables on a {references.grid} grid ({len(references)} materials) cannot "
+                             f"serve a {nh} x {nd} fit")
     if nh < 3 or nd < 3:
         raise ValueError(f"nh and nd must be >= 3, got nh={nh}, nd={nd}")
     if max_pixels < 1:
         raise ValueError(f"max_pixels must be >= 1, got {max_pixels}")
     if prior is not None and not hasattr(prior, "evaluate"):
         raise ValueError(f"prior must be a fitted BRDF with evaluate(), got {type(prior).__name__}")
+    return nh, nd
 
 
 def regulariser(dtd: np.ndarray, nd: int) -> np.ndarray:
@@ -535,15 +560,72 @@ def regulariser(dtd: np.ndarray, nd: int) -> np.ndarray:
     return mean_op.T @ dtd @ mean_op + diff_op.T @ (PHI_SMOOTHING * dtd + np.diag(ridge)) @ diff_op
 
 
-def _problems(qr, yy: np.ndarray, check_rows: np.ndarray, check_y: np.ndarray, nh: int, nd: int, prior):
-    """The regulariser and the per-channel problems (:class:`_Channel`) of the streamed QR factors, toward ``prior``'s nodes."""
+def _problems(qr, yy: np.ndarray, check_rows: np.ndarray, check_y: np.ndarray, nh: int, nd: int):
+    """The regulariser and the per-channel problems (:class:`_Channel`) of the streamed QR factors (no prior yet)."""
     channels = len(yy)
     diff = second_differences(nh, nd, D_WEIGHT)
     dtd = diff.T @ diff
     reg = regulariser(dtd, nd)
-    x0 = np.zeros((channels, 2 * nh * nd)) if prior is None else np.moveaxis(project_to_nodes(prior, nh, nd), 0, 1).reshape(channels, -1)
-    return reg, [_Channel(qr.r[c], qr.z[c], float(yy[c]), check_rows[:, :, c], check_y[:, c], reg, x0[c], float(np.trace(dtd)))
+    return reg, [_Channel(qr.r[c], qr.z[c], float(yy[c]), check_rows[:, :, c], check_y[:, c], reg, float(np.trace(dtd)))
                  for c in range(channels)]
+
+
+def _reference_prior(ch: _Channel, columns: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """The non-negative combination of reference ``columns`` (2K, M) that best reproduces one channel's pixels.
+
+    Each column is scaled to unit rendered energy (``c^T G c = 1``; columns the pixels do not see are
+    dropped), the weights ``w >= 0`` minimise ``||R (C w) - Q^T y||^2 + mu ||w||^2`` (NNLS on the Cholesky
+    factor), and the check pixels choose ``mu`` from :data:`REFERENCE_RIDGE_GRID`.  Returns the prior's
+    node values (2K,), ``mu`` and the weights (M,) of the unscaled columns.
+    """
+    energy = np.sqrt(np.maximum(np.einsum("km,km->m", ch.g_mat @ columns, columns), 0.0))
+    seen = energy > 1e-12 * max(float(energy.max()), 1e-300)
+    unit = columns[:, seen] / energy[seen]
+    gram, rhs0 = unit.T @ ch.g_mat @ unit, unit.T @ ch.g
+    best = None
+    for mu in REFERENCE_RIDGE_GRID:
+        low = np.linalg.cholesky(gram + mu * np.eye(len(rhs0)))
+        w, _ = nnls(low.T, solve_triangular(low, rhs0, lower=True), maxiter=50 * len(rhs0))
+        x = unit @ w
+        err = ch.check_error(x) if len(ch.check_y) else 0.0
+        if best is None or err < best[0]:
+            best = (err, mu, x, w)
+    weights = np.zeros(columns.shape[1])
+    weights[seen] = best[3] / energy[seen]
+    return best[2], float(best[1]), weights
+
+
+def _references_report(labels: list[tuple[str, int]], mus: list[float], weights: list[np.ndarray], columns: np.ndarray,
+                       problems: list[_Channel]) -> dict:
+    """Report entry of the reference prior: per channel its ridge and the materials carrying most of its image
+    (share of the rendered energy of the weighted columns, summed over a material's channels)."""
+    names = sorted({n for n, _ in labels})
+    owner = np.array([names.index(n) for n, _ in labels])
+    out = []
+    for mu, w, ch in zip(mus, weights, problems):
+        share = np.bincount(owner, w * np.einsum("km,km->m", ch.g_mat @ columns, columns) ** 0.5, minlength=len(names))
+        share = share / max(float(share.sum()), 1e-300)
+        top = np.argsort(share)[::-1][:REFERENCE_REPORT_TOP]
+        out.append({"ridge": mu, "references": [{"name": names[k], "share": float(share[k])} for k in top if share[k] > 0]})
+    return {"materials": len(names), "channels": out}
+
+
+def _pull_toward_prior(problems: list[_Channel], prior, references, nh: int, nd: int) -> tuple[tuple[float, ...], str | None, dict]:
+    """Point each channel's regulariser at its prior's node values; the ``lam_rel`` grid, the prior's name for
+    the report and the report's ``references`` entry (no prior: the plain grid from :data:`LAMBDA_MIN`)."""
+    if references is not None:
+        columns, labels = references.columns()
+        fits = [_reference_prior(ch, columns) for ch in problems]
+        for ch, (x0, _, _) in zip(problems, fits):
+            ch.pull_toward(x0)
+        report = _references_report(labels, [f[1] for f in fits], [f[2] for f in fits], columns, problems)
+        return (REFERENCE_LAMBDA,), "measured references", {"references": report}
+    if prior is not None:
+        x0 = np.moveaxis(project_to_nodes(prior, nh, nd), 0, 1).reshape(len(problems), -1)
+        for ch, x in zip(problems, x0):
+            ch.pull_toward(x)
+        return PRIOR_LAMBDA_GRID, str(getattr(prior, "model", type(prior).__name__)), {}
+    return tuple(lam for lam in LAMBDA_GRID if lam >= LAMBDA_MIN), None, {}
 
 
 def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: bool | None, transform: np.ndarray, norm: float):
@@ -591,11 +673,12 @@ def fit_bivariate(
     *,
     lmax: int | None = None,
     bands: tuple[int, ...] | None = None,
-    nh: int = DEFAULT_NH,
-    nd: int = DEFAULT_ND,
+    nh: int | None = None,
+    nd: int | None = None,
     max_pixels: int = DEFAULT_MAX_PIXELS,
     monotone: bool | None = None,
     prior=None,
+    references=None,
     cone_deg: float = FIT_CONE_DEG,
     subdiv: int = FIT_SUBDIV,
     seed: int = 0,
@@ -609,58 +692,57 @@ def fit_bivariate(
         Lighting and observed sphere pixels (channel counts must agree).
     lmax, bands
         Ignored (common fit signature): no SH series; the lighting enters through its quadrature samples.
-    nh, nd : int
-        Nodes in ``theta_h`` (sqrt-spaced) and ``theta_d`` (uniform), each >= 3.
+    nh, nd : int, optional
+        Nodes in ``theta_h`` (sqrt-spaced) and ``theta_d`` (uniform), >= 3; default 24 x 8, or the references' grid.
     max_pixels : int
         Fit pixels of the subsample (plus a quarter as many check pixels).
     monotone : bool or None
-        Force (True) or forbid (False) monotone decrease in ``theta_h``; None: chosen by the check pixels.
+        Force or forbid monotone decrease in ``theta_h``; None: the check pixels choose (with ``references``: False).
     prior : FittedBRDF, optional
-        A fit the table deviates from smoothly: the smoothness term is ``||D (x - x0)||^2`` with ``x0``
-        its node values (:func:`project_to_nodes`), ``lam_rel`` from :data:`PRIOR_LAMBDA_GRID`.
-        Nodes the lighting leaves unobserved then follow the prior instead of a linear continuation.
+        A fit the table deviates from smoothly: smoothness of ``x - x0``, ``x0`` its node values (:func:`project_to_nodes`),
+        ``lam_rel`` from :data:`PRIOR_LAMBDA_GRID`: unobserved nodes follow the prior, not a linear continuation.
+    references : brdfrig.fit.references.ReferenceTables, optional
+        Instead of ``prior`` (``bivariate+measured``): ``x0`` per channel the non-negative combination of these
+        measured tables that best reproduces the pixels (:func:`_reference_prior`), ``lam_rel`` :data:`REFERENCE_LAMBDA`.
     cone_deg, subdiv : float, int
         Sharp-lobe quadrature of the design (:func:`brdfrig.fit.quadrature.lobe_quadrature`).
-    seed : int
-        Seed of the pixel subsample.
-    progress : bool
-        Show a tqdm bar (stderr) over streamed pixels.
+    seed, progress : int, bool
+        Seed of the pixel subsample; a tqdm bar (stderr) over streamed pixels.
 
     Returns
     -------
     brdf : BivariateBRDF
     report : dict
-        JSON-able: ``theta_h_nodes_deg``, ``theta_d_nodes_deg``, ``lambda_rel`` per channel,
-        ``monotone``, ``prior`` (its model name or None), ``check_relative_rms`` (non-negative and
-        monotone tables), ``observation`` (C, nh, nd: data weight ``diag(R^T R)`` relative to the
-        channel's largest), ``observed`` ((nh, nd) bool: data weight above the regulariser's in every
-        channel), ``filled_by_regulariser`` (its complement), ``observed_fraction``, ``determined``
-        (observed fraction >= :data:`DETERMINED_MIN_OBSERVED`, or a prior), ``relative_rms_residual`` (fit
-        pixels), ``pixels_used``, ``check_pixels``, ``seconds``.
+        JSON-able: ``theta_h_nodes_deg``, ``theta_d_nodes_deg``, ``lambda_rel`` per channel, ``monotone``,
+        ``prior`` (a model name, ``"measured references"`` or None), ``references`` (per channel the ridge and
+        the materials carrying most of the prior's image), ``check_relative_rms``, ``observation`` (C, nh, nd:
+        data weight ``diag(R^T R)`` relative to the channel's largest), ``observed`` ((nh, nd): data weight above
+        the regulariser's in every channel), ``filled_by_regulariser``, ``observed_fraction``, ``determined``
+        (>= :data:`DETERMINED_MIN_OBSERVED` observed, or a prior), ``relative_rms_residual``, ``pixels_used``,
+        ``check_pixels``, ``seconds``.
     """
     t0 = time.perf_counter()
     channels = _check_scenes(scenes)
-    _check_options(nh, nd, max_pixels, prior)
+    nh, nd = _grid(nh, nd, max_pixels, prior, references)
     fit_picks, check_picks = _subsample(scenes, max_pixels, np.random.default_rng(seed))
     bar = tqdm(desc="bivariate fit", unit="px", total=sum(len(p) for p in fit_picks), disable=not progress, leave=False)
     quad = {"cone_deg": cone_deg, "subdiv": subdiv}
     qr, yy = _stream(scenes, fit_picks, nh, nd, channels, quad, bar)
     bar.close()
     check_rows, check_y = _check_system(scenes, check_picks, nh, nd, quad)
-    reg, problems = _problems(qr, yy, check_rows, check_y, nh, nd, prior)
-    grid = tuple(lam for lam in LAMBDA_GRID if lam >= LAMBDA_MIN) if prior is None else PRIOR_LAMBDA_GRID
+    reg, problems = _problems(qr, yy, check_rows, check_y, nh, nd)
+    grid, prior_name, extra = _pull_toward_prior(problems, prior, references, nh, nd)
+    monotone = False if references is not None and monotone is None else monotone
     norm = max(float(np.sum(check_y**2)), 1e-300)
     lams, lam_errors, x, use_monotone, check_err = _solve_tables(problems, grid, monotone, cumulative_operator(nh, nd), norm)
     tables = x.reshape(channels, 2, nh, nd)
     brdf = BivariateBRDF(tables[:, 0], tables[:, 1])
     report = {
         "model": "bivariate", "nh": nh, "nd": nd,
-        "theta_h_nodes_deg": np.degrees(theta_h_nodes(nh)).tolist(),
-        "theta_d_nodes_deg": np.degrees(theta_d_nodes(nd)).tolist(),
+        "theta_h_nodes_deg": np.degrees(theta_h_nodes(nh)).tolist(), "theta_d_nodes_deg": np.degrees(theta_d_nodes(nd)).tolist(),
         "lambda_rel": lams, "lambda_check_errors": lam_errors, "monotone": use_monotone,
-        "prior": None if prior is None else str(getattr(prior, "model", type(prior).__name__)),
-        "check_relative_rms": check_err,
-        **_identifiability(problems, lams, reg, nh, nd, prior is not None),
+        "prior": prior_name, **extra, "check_relative_rms": check_err,
+        **_identifiability(problems, lams, reg, nh, nd, prior_name is not None),
         "relative_rms_residual": math.sqrt(sum(ch.residual(xc) for ch, xc in zip(problems, x)) / max(float(yy.sum()), 1e-300)),
         "pixels_used": int(sum(len(p) for p in fit_picks)), "check_pixels": int(len(check_y)),
         "seconds": time.perf_counter() - t0,

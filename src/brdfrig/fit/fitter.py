@@ -37,6 +37,7 @@ from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
 from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
 from brdfrig.fit.noise import scenes_noise
+from brdfrig.fit.references import shipped
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
 from brdfrig.fit.relight import estimate_pixels, loso_estimates, other_lightings, predict_under, spread_estimates
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
@@ -85,10 +86,13 @@ class FitResult:
 class _Candidates:
     """Fits candidates on one :class:`~brdfrig.fit.stream.FitData`, one pixel stream per model spec."""
 
-    def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str, required: str | None = None) -> None:
-        """``required``: the model asked for (its fit errors propagate; another candidate's failure only skips it)."""
+    def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str, required: str | None = None,
+                 reference_tables=None) -> None:
+        """``required``: the model asked for (its fit errors propagate; another candidate's failure only skips it);
+        ``reference_tables``: those of ``bivariate+measured`` (None: :func:`brdfrig.fit.references.shipped`)."""
         self.data, self.ident, self.lmax, self.pmax, self.solver = data, ident, lmax, pmax, solver
         self.required = required
+        self.reference_tables = reference_tables
         self.bands = tuple(ident.observable_bands)
         self.streams: dict[ModelSpec, Stream] = {}
         self.brdfs: dict[str, FittedBRDF] = {}
@@ -157,6 +161,8 @@ class _Candidates:
         t0 = time.perf_counter()
         data = self.data
         extra = {} if prior is None else {"prior": self.brdfs[prior]}
+        if REGISTRY[name].prior_references:
+            extra["references"] = self.reference_tables if self.reference_tables is not None else shipped()
         brdf, rep = single_fit(name)(data.train_scenes(), lmax=self.lmax, bands=self.bands, progress=data.progress, **extra)
         self.brdfs[name] = brdf
         held_err = check = None
@@ -181,6 +187,7 @@ def fit_brdf(
     tol: float = STOP_TOL,
     seed: int = 0,
     estimate: bool | None = None,
+    reference_tables=None,
 ) -> FitResult:
     """Fit a BRDF to one or more scenes.
 
@@ -209,6 +216,9 @@ def fit_brdf(
         Estimate the relighting error (:mod:`brdfrig.fit.relight`; None: only for ``auto``, whose
         choice depends on it).  A requested model is then also compared with :data:`REFERENCES` (one
         scene) or refitted per fold (several scenes), at the cost of those fits.
+    reference_tables : brdfrig.fit.references.ReferenceTables, optional
+        The measured materials ``bivariate+measured`` combines (default: the shipped set,
+        :func:`brdfrig.fit.references.shipped`); a benchmark passes the set without its own material.
 
     Returns
     -------
@@ -225,7 +235,8 @@ def fit_brdf(
     # The blocks are small (a few thousand x a few hundred): multithreaded BLAS only
     # adds contention (measured 15-30x slower QR on a loaded 2-core machine).
     with threadpool_limits(limits=1, user_api="blas"):
-        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, bool(estimate) or model == "auto")
+        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, bool(estimate) or model == "auto",
+                         reference_tables)
 
 
 def _wanted(model: str, n_scenes: int, estimate: bool) -> tuple[str, ...]:
@@ -234,7 +245,7 @@ def _wanted(model: str, n_scenes: int, estimate: bool) -> tuple[str, ...]:
     if model == "auto":
         return RICHNESS
     extra = REFERENCES if estimate and n_scenes == 1 else ()
-    return tuple(m for m in RICHNESS if m == model or m in extra)
+    return tuple(m for m in REGISTRY if m == model or m in extra)
 
 
 def _analyse(data: FitData, scenes_in: list[int], lmax: int, pmax: int, wanted, max_theta_deg: float) -> Identifiability:
@@ -243,7 +254,7 @@ def _analyse(data: FitData, scenes_in: list[int], lmax: int, pmax: int, wanted, 
         return analyse_lighting([data.coeffs[k] for k in scenes_in], lmax, pmax, models=kinds, theta_max_deg=max_theta_deg)
 
 
-def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, estimate) -> FitResult:
+def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, estimate, reference_tables) -> FitResult:
     t0 = time.perf_counter()
     clock = StageClock()
     with clock("gather"):
@@ -264,7 +275,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         raise InputError("the lighting has no energy in any band: nothing can be measured")
 
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
-    fitter = _Candidates(data, ident, lmax, pmax, solver, None if model == "auto" else model)
+    fitter = _Candidates(data, ident, lmax, pmax, solver, None if model == "auto" else model, reference_tables)
     for name in wanted:
         fitter.fit(name, full_lmax, model == "auto")
     cands = fitter.entries
@@ -273,7 +284,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         if name in fitter.brdfs:
             cand.plausibility = plausibility(fitter.brdfs[name])
     if estimate:
-        _estimate(data, fitter, model, (lmax, pmax, solver, full_lmax, max_theta_deg))
+        _estimate(data, fitter, model, (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables))
 
     if model == "auto":
         chosen, reason, selection = choose(cands, noise, one_image=len(scenes) == 1)
@@ -320,12 +331,12 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:
     """Fit ``names`` on a fold's training pixels (the fold's own identifiability); their BRDFs."""
-    lmax, pmax, solver, full_lmax, max_theta_deg = settings
+    lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables = settings
     present = sorted(set(np.unique(fold.pool.scene[fold.train]).tolist()))
     quiet = fold.with_split(fold.train, fold.held)
     quiet.progress = False
     ident = _analyse(quiet, present, lmax, pmax, names, max_theta_deg)
-    sub = _Candidates(quiet, ident, lmax, pmax, solver)
+    sub = _Candidates(quiet, ident, lmax, pmax, solver, reference_tables=reference_tables)
     for m in names:
         sub.fit(m, full_lmax, auto)
     return {m: b for m, b in sub.brdfs.items() if m in names}

@@ -11,7 +11,9 @@ Kinds of model:
             ``fit(scenes, lmax=..., bands=..., progress=...) -> (brdf, report)`` with
             ``report["determined"]`` a bool; the scenes hold only the training pixels.  A single model
             with ``prior_parametric`` also takes ``prior=brdf``: the fitter passes the parametric
-            candidate with the smallest held-out error (``bivariate+prior``).
+            candidate with the smallest held-out error (``bivariate+prior``); one with ``prior_references``
+            takes ``references=`` measured materials' tables (``bivariate+measured``:
+            :mod:`brdfrig.fit.references`).
 """
 
 from __future__ import annotations
@@ -27,14 +29,17 @@ __all__ = ["ModelInfo", "REGISTRY", "RICHNESS", "MODELS", "SOLVERS", "LINEAR_SH"
 @dataclass(frozen=True)
 class ModelInfo:
     """A fittable model: its name, kind (module docstring), for ``single`` models ``module:function``,
-    whether it is a parametric family of a few parameters per channel (``parametric``), and whether its
-    fit takes the best parametric candidate as a prior (``prior_parametric``)."""
+    whether it is a parametric family of a few parameters per channel (``parametric``), whether its
+    fit takes the best parametric candidate (``prior_parametric``) or measured reference tables
+    (``prior_references``) as a prior, and whether it is a candidate of ``auto`` (``auto``)."""
 
     name: str
     kind: str
     fit: str | None = None
     parametric: bool = False
     prior_parametric: bool = False
+    prior_references: bool = False
+    auto: bool = True
 
 
 SOLVERS: tuple[str, ...] = ("paper", "joint", "tikhonov")
@@ -49,14 +54,16 @@ REGISTRY: dict[str, ModelInfo] = {m.name: m for m in (
     ModelInfo("microfacet", "single", "brdfrig.fit.microfacet:fit_microfacet", parametric=True),
     ModelInfo("bivariate", "single", "brdfrig.fit.bivariate:fit_bivariate"),
     ModelInfo("bivariate+prior", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_parametric=True),
+    ModelInfo("bivariate+measured", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_references=True, auto=False),
     ModelInfo("full", "linear"),
     ModelInfo("full+prior", "prior"),
 )}
 """Every model ``fit_brdf`` fits, in order of richness (the tie-break of ``auto``)."""
 
-RICHNESS: tuple[str, ...] = tuple(REGISTRY)
-"""The candidates of ``auto``, simplest first."""
-MODELS: tuple[str, ...] = ("auto",) + RICHNESS
+RICHNESS: tuple[str, ...] = tuple(m.name for m in REGISTRY.values() if m.auto)
+"""The candidates of ``auto``, simplest first (``bivariate+measured`` is fitted on request only: docs/DESIGN.md,
+History, reference tables)."""
+MODELS: tuple[str, ...] = ("auto",) + tuple(REGISTRY)
 """Values of ``fit_brdf(model=...)``, the ``--model`` option and the ``[fit] model`` key."""
 LINEAR_SH: tuple[str, ...] = tuple(m.name for m in REGISTRY.values() if m.kind == "linear")
 """The SH models solved by every solver in :data:`SOLVERS`."""

@@ -9,7 +9,7 @@
   :func:`brdfrig.fit.models.plausibility`).  From one image it asks whether a parametric family holds
   (:func:`family_holds`): the family with the smallest held-out error is kept when that error, above
   the image's pixel noise, is at most :data:`FAMILY_HOLDS` times the data-driven table's
-  (``bivariate+prior``) plus :data:`NOISE_TOL` times the noise; otherwise the table.  With several scenes (or without those candidates) it
+  (:data:`TABLE`) plus :data:`NOISE_TOL` times the noise; otherwise the table.  With several scenes (or without those candidates) it
   picks the one with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`); of those
   within :data:`SELECT_RTOL` of it, the one with the smallest held-out error.  Without any estimate it
   picks the richest (order :data:`brdfrig.fit.registry.RICHNESS`) whose held-out error (same lighting)
