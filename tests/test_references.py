@@ -176,3 +176,7 @@ def test_a_combination_of_references_is_recovered(synthetic_references):
     assert result.report.candidates["bivariate+measured"].fit_report["references"]["materials"] == 4
     err_fitter = relative_rms(result.brdf.predict(test_env, normals), reference)
     assert err_fitter < 0.005, err_fitter  # measured 0.08%
+    from brdfrig.fit.report import format_report
+
+    line = next(t for t in format_report(result.report) if t.lstrip().startswith("bivariate+measured"))
+    assert "prior: test/rough" in line or "prior: test/grazing" in line, line

@@ -37,8 +37,8 @@ def register(subparsers) -> None:
     p.add_argument("--circle", default=None, help="sample sphere circle 'cx,cy,r' in pixels (default: detect in each image)")
     p.add_argument("--probe-circle", default=None, help="mirror-ball circle 'cx,cy,r' in every PROBE (default: detect)")
     p.add_argument("--references", default=None, metavar="TABLES.npz",
-                   help="measured materials the bivariate+measured model combines (default: the shipped RGL-EPFL set; "
-                        "build one with python -m brdfrig.fit.references)")
+                   help="measured materials the bivariate+measured model combines (default: the 51 RGL-EPFL materials "
+                        "shipped with brdfrig; the README says how to build your own from MERL or neural files)")
     p.add_argument("--no-estimate", action="store_true",
                    help="skip the relighting estimate of the requested --model and the reference fits it takes "
                         "(faster; 'auto' always estimates, it chooses by it)")

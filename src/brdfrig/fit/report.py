@@ -216,6 +216,18 @@ def _parameters(fit_report: dict, limit: int = 6) -> str:
     return " ".join(f"{k} {_channels(v)}" for k, v in items[:limit])
 
 
+def _references(entry: dict | None, limit: int = 3) -> str:
+    """The measured materials carrying most of a reference prior (share averaged over the channels), or ''."""
+    if not entry:
+        return ""
+    share: dict[str, float] = {}
+    for ch in entry["channels"]:
+        for r in ch["references"]:
+            share[r["name"]] = share.get(r["name"], 0.0) + r["share"] / len(entry["channels"])
+    top = sorted(share.items(), key=lambda kv: -kv[1])[:limit]
+    return "prior: " + ", ".join(f"{name} {100 * v:.0f}%" for name, v in top)
+
+
 def _pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.2f}%"
 
@@ -235,7 +247,7 @@ def format_report(report: FitReport) -> list[str]:
         if c.system is not None:
             text += f" rank {min(c.system.rank)}/{c.system.unknowns}, cond {max(c.system.condition_number):.3g}"
         elif c.fit_report is not None:
-            text += " " + _parameters(c.fit_report)
+            text += " " + _parameters(c.fit_report) + _references(c.fit_report.get("references"))
         flags = [f for f, on in (("not determined", not c.determined), ("implausible", c.plausibility is not None
                  and not c.plausibility["plausible"]), (c.radiance_check, c.radiance_check is not None)) if on]
         lines.append(text + "".join(f"  [{f}]" for f in flags))
