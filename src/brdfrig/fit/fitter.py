@@ -245,7 +245,7 @@ def _wanted(model: str, n_scenes: int, estimate: bool) -> tuple[str, ...]:
     if model == "auto":
         return RICHNESS
     extra = REFERENCES if estimate and n_scenes == 1 else ()
-    return tuple(m for m in REGISTRY if m == model or m in extra)
+    return tuple(m for m in RICHNESS if m == model or m in extra)
 
 
 def _analyse(data: FitData, scenes_in: list[int], lmax: int, pmax: int, wanted, max_theta_deg: float) -> Identifiability:

@@ -29,9 +29,9 @@ __all__ = ["ModelInfo", "REGISTRY", "RICHNESS", "MODELS", "SOLVERS", "LINEAR_SH"
 @dataclass(frozen=True)
 class ModelInfo:
     """A fittable model: its name, kind (module docstring), for ``single`` models ``module:function``,
-    whether it is a parametric family of a few parameters per channel (``parametric``), whether its
+    whether it is a parametric family of a few parameters per channel (``parametric``), and whether its
     fit takes the best parametric candidate (``prior_parametric``) or measured reference tables
-    (``prior_references``) as a prior, and whether it is a candidate of ``auto`` (``auto``)."""
+    (``prior_references``) as a prior."""
 
     name: str
     kind: str
@@ -39,7 +39,6 @@ class ModelInfo:
     parametric: bool = False
     prior_parametric: bool = False
     prior_references: bool = False
-    auto: bool = True
 
 
 SOLVERS: tuple[str, ...] = ("paper", "joint", "tikhonov")
@@ -54,16 +53,15 @@ REGISTRY: dict[str, ModelInfo] = {m.name: m for m in (
     ModelInfo("microfacet", "single", "brdfrig.fit.microfacet:fit_microfacet", parametric=True),
     ModelInfo("bivariate", "single", "brdfrig.fit.bivariate:fit_bivariate"),
     ModelInfo("bivariate+prior", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_parametric=True),
-    ModelInfo("bivariate+measured", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_references=True, auto=False),
+    ModelInfo("bivariate+measured", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_references=True),
     ModelInfo("full", "linear"),
     ModelInfo("full+prior", "prior"),
 )}
 """Every model ``fit_brdf`` fits, in order of richness (the tie-break of ``auto``)."""
 
-RICHNESS: tuple[str, ...] = tuple(m.name for m in REGISTRY.values() if m.auto)
-"""The candidates of ``auto``, simplest first (``bivariate+measured`` is fitted on request only: docs/DESIGN.md,
-History, reference tables)."""
-MODELS: tuple[str, ...] = ("auto",) + tuple(REGISTRY)
+RICHNESS: tuple[str, ...] = tuple(REGISTRY)
+"""The candidates of ``auto``, simplest first."""
+MODELS: tuple[str, ...] = ("auto",) + RICHNESS
 """Values of ``fit_brdf(model=...)``, the ``--model`` option and the ``[fit] model`` key."""
 LINEAR_SH: tuple[str, ...] = tuple(m.name for m in REGISTRY.values() if m.kind == "linear")
 """The SH models solved by every solver in :data:`SOLVERS`."""
