@@ -576,7 +576,8 @@ def _reference_prior(ch: _Channel, columns: np.ndarray) -> tuple[np.ndarray, flo
     Each column is scaled to unit rendered energy (``c^T G c = 1``; columns the pixels do not see are
     dropped), the weights ``w >= 0`` minimise ``||R (C w) - Q^T y||^2 + mu ||w||^2`` (NNLS on the Cholesky
     factor), and the check pixels choose ``mu`` from :data:`REFERENCE_RIDGE_GRID`.  Returns the prior's
-    node values (2K,), ``mu`` and the weights (M,) of the unscaled columns.
+    node values (2K,), ``mu`` and the weights (M,) of the unit-energy columns (each column's share of the
+    prior's rendered image; 0 for unseen columns).
     """
     energy = np.sqrt(np.maximum(np.einsum("km,km->m", ch.g_mat @ columns, columns), 0.0))
     seen = energy > 1e-12 * max(float(energy.max()), 1e-300)
@@ -591,19 +592,18 @@ def _reference_prior(ch: _Channel, columns: np.ndarray) -> tuple[np.ndarray, flo
         if best is None or err < best[0]:
             best = (err, mu, x, w)
     weights = np.zeros(columns.shape[1])
-    weights[seen] = best[3] / energy[seen]
+    weights[seen] = best[3]
     return best[2], float(best[1]), weights
 
 
-def _references_report(labels: list[tuple[str, int]], mus: list[float], weights: list[np.ndarray], columns: np.ndarray,
-                       problems: list[_Channel]) -> dict:
+def _references_report(labels: list[tuple[str, int]], mus: list[float], weights: list[np.ndarray]) -> dict:
     """Report entry of the reference prior: per channel its ridge and the materials carrying most of its image
-    (share of the rendered energy of the weighted columns, summed over a material's channels)."""
+    (the unit-energy weights of :func:`_reference_prior`, summed over a material's channels)."""
     names = sorted({n for n, _ in labels})
     owner = np.array([names.index(n) for n, _ in labels])
     out = []
-    for mu, w, ch in zip(mus, weights, problems):
-        share = np.bincount(owner, w * np.einsum("km,km->m", ch.g_mat @ columns, columns) ** 0.5, minlength=len(names))
+    for mu, w in zip(mus, weights):
+        share = np.bincount(owner, w, minlength=len(names))
         share = share / max(float(share.sum()), 1e-300)
         top = np.argsort(share)[::-1][:REFERENCE_REPORT_TOP]
         out.append({"ridge": mu, "references": [{"name": names[k], "share": float(share[k])} for k in top if share[k] > 0]})
@@ -618,7 +618,7 @@ def _pull_toward_prior(problems: list[_Channel], prior, references, nh: int, nd:
         fits = [_reference_prior(ch, columns) for ch in problems]
         for ch, (x0, _, _) in zip(problems, fits):
             ch.pull_toward(x0)
-        report = _references_report(labels, [f[1] for f in fits], [f[2] for f in fits], columns, problems)
+        report = _references_report(labels, [f[1] for f in fits], [f[2] for f in fits])
         return (REFERENCE_LAMBDA,), "measured references", {"references": report}
     if prior is not None:
         x0 = np.moveaxis(project_to_nodes(prior, nh, nd), 0, 1).reshape(len(problems), -1)
