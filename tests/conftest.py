@@ -13,7 +13,12 @@ PROBE_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "pr
 
 
 def pytest_configure(config):
-    """Fits recorded by commands under test go to a private catalogue, never the user's library."""
+    """Fits recorded by commands under test go to a private catalogue, never the user's library.  Under
+    pytest-xdist each of the ``n`` workers (and the commands it starts) gets ``cores / n`` numba threads, so the
+    workers' parallel kernels do not oversubscribe the cores (set before any test module imports numba)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0"))
+    if workers > 1 and "NUMBA_NUM_THREADS" not in os.environ:
+        os.environ["NUMBA_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // workers))
     config._brdfrig_library = Path(tempfile.mkdtemp(prefix="brdfrig-test-library-"))
     os.environ["BRDFRIG_LIBRARY"] = str(config._brdfrig_library / "library.sqlite")
 
