@@ -121,9 +121,15 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     from brdfrig.evaluate.measured_report import format_table, result_from_json
 
     assert format_table(result_from_json(data)) in text
-    # a second run reads every ground truth from the cache (diffuse alone: the fits are not what it checks)
-    assert main([a if a != "auto,diffuse" else "diffuse" for a in argv]) == 0
-    assert "0 rendered, 4 from the cache" in capsys.readouterr().out
+    # a second run, on two Dask worker processes, reads every ground truth from the cache and fits (diffuse
+    # alone) to the same numbers as this process did
+    assert main([a if a != "auto,diffuse" else "diffuse" for a in argv] + ["--workers", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "0 rendered, 4 from the cache" in text and "summed over 2 worker processes" in text
+    again = json.loads((out / "measured.json").read_text())
+    assert again["workers"] == 2 and again["phases_seconds"]["CPU, all threads"] > 0
+    first = {c["material"]: c["errors"]["ennis"] for c in data["cases"] if c["model"] == "diffuse"}
+    assert {c["material"]: c["errors"]["ennis"] for c in again["cases"]} == first
 
 
 def test_cli_bad_input_exits_2(tmp_path):
@@ -134,6 +140,9 @@ def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--noise", "nan",
                            "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "--noise" in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--workers", "0",
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "--workers" in proc.stderr
 
 
 def _case(material: str, model: str, error: float, estimate: float | None = None) -> dict:
@@ -169,3 +178,33 @@ def test_summary_counts_picks_only_against_models_that_ran_and_estimates_within_
     assert plot_estimates(both, tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     none = result_from_json(_run([c | {"estimate": None} for c in cases], ["auto", "diffuse"]))
     assert plot_estimates(none, tmp_path / "n.png") is None and not (tmp_path / "n.png").exists()
+
+
+def test_summary_noise_ratios_and_tables_against_microfacet_per_group():
+    """Noise: auto's errors 2/4/10% noise-free and 2.2/4/13% with 1% noise on the same three materials: median
+    ratio 4/4 = 1x, worst 13/10 = 1.3x, per material 1.1x, 1x, 1.3x (median 1.1x), only the third over 1.2x.
+    Groups: the table beats microfacet on the felt (3 vs 5%), loses on the satin (6 vs 4%); the third material
+    is in no group."""
+    from brdfrig.evaluate.measured_report import format_summary, noise_ratios, result_from_json, table_vs_microfacet
+
+    mats = {"rgl/acrylic_felt_x": (0.02, 0.022, 0.03, 0.05), "rgl/satin_y": (0.04, 0.04, 0.06, 0.04),
+            "rgl/plastic_z": (0.10, 0.13, 0.01, 0.02)}
+    cases = []
+    for name, (clean, noisy, table, mf) in mats.items():
+        cases += [_case(name, "auto", clean), _case(name, "auto", noisy) | {"noise": 0.01},
+                  _case(name, "bivariate", table), _case(name, "microfacet", mf)]
+    run = _run(cases, ["auto", "bivariate", "microfacet"])
+    run["setup"]["noises"] = [0.0, 0.01]
+    result = result_from_json(run)
+    (row,) = noise_ratios(result)
+    assert row["n"] == 3 and row["ratio"]["median"] == pytest.approx(1.0) and row["ratio"]["worst"] == pytest.approx(1.3)
+    assert row["median_material_ratio"] == pytest.approx(1.1) and row["over_1.2x"] == ["rgl/plastic_z"]
+    groups = {r["group"]: r for r in table_vs_microfacet(result)}
+    assert set(groups) == {"felts", "satins"}
+    assert (groups["felts"]["table_better"], groups["felts"]["n"]) == (1, 1)
+    assert (groups["satins"]["table_better"], groups["satins"]["table_median"]) == (0, pytest.approx(0.06))
+    text = format_summary(result)
+    assert "median 4.00% (1.00x)" in text and "worst 13.00% (1.30x)" in text
+    assert "over 1.2x on 1 (rgl/plastic_z 10.00 -> 13.00%)" in text
+    assert "bivariate          felts    1 of 1   3.00 vs 5.00" in text
+    assert "noise 0.01, bivariate" not in text  # only auto ran with noise: no group rows there

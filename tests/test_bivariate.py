@@ -249,3 +249,23 @@ def test_phi_d_dependence_is_recovered(envs):
     mean_nodes = project_to_nodes(truth, 24, 8).mean(axis=0)
     floor = relative_rms(BivariateBRDF(mean_nodes).predict(test_env, normals), reference)
     assert err < 0.015 and err < 0.3 * floor, (err, floor)  # measured 0.50% against the mean nodes' 4.98%
+
+
+def test_tables_of_different_grids_predicted_together_equal_each_alone(envs):
+    """One pass over the quadrature samples serves several tables (24 x 8, 32 x 12, a phi_d-dependent one): each
+    prediction equals the table's own to 1e-12 relative, and the constant table's equals the analytic
+    Lambertian's (cell-centre quadrature) to 1e-3."""
+    from brdfrig.fit.analytic import Lambertian
+    from brdfrig.fit.bivariate import predict_tables
+
+    _, test_env = envs
+    normals = _sphere_normals(24)
+    rng = np.random.default_rng(3)
+    lambertian = BivariateBRDF(np.broadcast_to((np.array([0.6, 0.4, 0.2]) / math.pi)[:, None, None], (3, 32, 12)))
+    brdfs = [BivariateBRDF(rng.random((3, 24, 8))), lambertian, BivariateBRDF(rng.random((3, 24, 8)), rng.random((3, 24, 8)))]
+    together = predict_tables(brdfs, test_env, normals)
+    for brdf, pred in zip(brdfs, together):
+        alone = predict_tables([brdf], test_env, normals)[0]
+        assert pred.shape == (len(normals), 3) and relative_rms(pred, alone) < 1e-12
+    assert relative_rms(together[1], Lambertian([0.6, 0.4, 0.2]).predict(test_env, normals)) < 1e-3
+    assert predict_tables([], test_env, normals) == []

@@ -121,7 +121,7 @@ def test_spread_estimate_within_factor_two_on_synthetic_materials(probes):
         "lobe": GGX(alpha=0.3, f0=0.06, diffuse=[0.44, 0.42, 0.33]),
     }
     envs = other_lightings(fit_env)
-    preds = {m: predict_under(b, envs, normals) for m, b in cands.items()}
+    preds = predict_under(cands, envs, normals)
     est = spread_estimates(preds, weights, dict.fromkeys(cands, None))
     ref = np.stack([render_groundtruth(truth, normals, e) for e in envs])
     energy = np.einsum("lnc,n->l", ref**2, weights)

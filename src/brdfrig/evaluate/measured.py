@@ -337,13 +337,17 @@ def noisy_scenes(scenes: list[Scene], noise: float, seed: int = 0) -> list[Scene
             for s in scenes]
 
 
-def _relight(truth: Truth, brdf) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-    """Errors and relit radiance of ``brdf`` under every relight probe of ``truth``."""
-    errors, relit = {}, {}
-    for name, (env, reference) in truth.relight.items():
-        relit[name] = np.asarray(brdf.predict(env, truth.normals), dtype=np.float64)
-        errors[name] = relative_rms(relit[name], reference, truth.weights)
-    return errors, relit
+def _relight(truth: Truth, brdfs: dict) -> dict[str, tuple[dict[str, float], dict[str, np.ndarray]]]:
+    """name -> (errors, relit radiance) of each BRDF in ``brdfs`` under every relight probe of ``truth``
+    (:func:`brdfrig.fit.relight.predict_under`: the tables share their design)."""
+    from brdfrig.fit.relight import predict_under
+
+    out = {m: ({}, {}) for m in brdfs}
+    for probe, (env, reference) in truth.relight.items():
+        for m, pred in predict_under(brdfs, [env], truth.normals).items():
+            out[m][1][probe] = pred[0]
+            out[m][0][probe] = relative_rms(pred[0], reference, truth.weights)
+    return out
 
 
 def _default_fit(scenes, model, material: str):
@@ -371,7 +375,7 @@ def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int =
     only it is timed.
     """
     result, report, seconds, cpu = _timed_fit(truth, model, noise, seed, fit)
-    errors, relit = _relight(truth, result.brdf)
+    errors, relit = _relight(truth, {model: result.brdf})[model]
     estimate, method = reported_estimate(report)
     return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
                       float(noise), errors, seconds, estimate, truth.material.held_out,
@@ -391,18 +395,20 @@ def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int =
     if "auto" in models:
         result, report, seconds, cpu = _timed_fit(truth, "auto", noise, seed, None)
         estimate, method = reported_estimate(report)
-        errors, relit = _relight(truth, result.brdf)
+        chosen = report["chosen_model"]
+        brdfs = {m: b for m, b in result.brdfs.items() if m in models and m != "auto"}
+        relights = _relight(truth, {**brdfs, chosen: result.brdf})  # the chosen fit is relit once
+        errors, relit = relights[chosen]
         mat = truth.material
         out["auto"] = CaseResult(mat.name, "auto", report["chosen_model"], truth.setup.scenes, float(noise), errors,
                                  seconds, estimate, mat.held_out, estimate_method=method, cpu_seconds=cpu, relit=relit)
-        for name, brdf in getattr(result, "brdfs", {}).items():
-            if name in models and name != "auto":
-                cand = report["candidates"].get(name, {})
-                estimate, method = reported_estimate(cand)
-                errors, relit = _relight(truth, brdf)
-                out[name] = CaseResult(mat.name, name, name, truth.setup.scenes, float(noise), errors,
-                                       float(cand.get("seconds", math.nan)), estimate, mat.held_out, estimate_method=method,
-                                       relit=relit)
+        for name in brdfs:
+            cand = report["candidates"].get(name, {})
+            estimate, method = reported_estimate(cand)
+            errors, relit = relights[name]
+            out[name] = CaseResult(mat.name, name, name, truth.setup.scenes, float(noise), errors,
+                                   float(cand.get("seconds", math.nan)), estimate, mat.held_out, estimate_method=method,
+                                   relit=relit)
     for name in models:
         if name not in out:
             out[name] = fit_and_relight(truth, name, noise=noise, seed=seed)
@@ -473,6 +479,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--cache", type=Path, default=None, metavar="DIR",
                    help=f"ground-truth render cache (default: OUT/gt-cache; {DEFAULT_CACHE_DIR} is relight_case's)")
     g.add_argument("--peer", choices=["mitsuba"], default=None, help="also fit the Mitsuba principled peer")
+    g.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="Dask worker processes that fit materials side by side, each with cores / N numba threads "
+                        "(default: %(default)s, in this process)")
     g.add_argument("--no-warm-up", action="store_true",
                    help="skip the untimed warm-up fits (the first material's fit times then include compilation)")
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from brdfrig.evaluate.measured_run import MeasuredResult
 
-__all__ = ["summarize", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial", "result_from_json",
+__all__ = ["summarize", "noise_ratios", "table_vs_microfacet", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial", "result_from_json",
            "plot_errors", "plot_worst"]
 
 AUTO = "auto"
@@ -24,6 +24,19 @@ PICK_RTOL = 1.1
 """``auto`` picks well on a material when its error is within this factor of the best model's."""
 ESTIMATE_FACTOR = 2.0
 """A reported estimate is good when within this factor of the measured error."""
+NOISE_FACTOR = 1.2
+"""Noise is tolerated when it raises an error statistic (or a material's error) by at most this factor."""
+MATERIAL_GROUPS = {
+    "felts": r"felt",
+    "satins": r"satin",
+    "paints": r"irid_|vch_|cm_|ilm_|metallic",
+    "papers": r"paper|cardboard|notebook|bluebook|bindercover",
+}
+"""Groups of materials that are not GGX-like (issue 10), as regular expressions searched in the material's name:
+felts, satins, paints (iridescent flake, colour-changing, metallic and ILM paints of the RGL set) and papers
+(RGL and Nielsen papers, cardboards, binder and book covers)."""
+TABLES = ("bivariate", "bivariate+prior", "bivariate+measured")
+"""The data-driven table models weighed against ``microfacet`` per material group."""
 
 
 def _groups(result: MeasuredResult):
@@ -70,6 +83,57 @@ def summarize(result: MeasuredResult) -> list[dict]:
                 if model == AUTO:
                     row.update(_auto_quality(mats))
                 rows.append(row)
+    return rows
+
+
+def noise_ratios(result: MeasuredResult, model: str = AUTO) -> list[dict]:
+    """``model``'s errors with noise against noise-free, on the materials run both ways (same scene count).
+
+    One dict per (scenes, noise > 0): the ratios of the median, p90 and worst errors (noisy / noise-free), the
+    median per-material ratio, the materials whose error grew by more than :data:`NOISE_FACTOR` (largest ratio
+    first) and every material's ``[noise-free, noisy]`` error.
+    """
+    groups = _groups(result)
+    rows = []
+    for (scenes, noise), by_mat in groups.items():
+        clean = groups.get((scenes, 0.0))
+        if noise == 0 or clean is None:
+            continue
+        pairs = {m: (clean[m][model].error, v[model].error) for m, v in by_mat.items()
+                 if model in v and m in clean and model in clean[m]}
+        pairs = {m: p for m, p in pairs.items() if all(math.isfinite(x) for x in p)}
+        if not pairs:
+            continue
+        a, b = _stats([p[0] for p in pairs.values()]), _stats([p[1] for p in pairs.values()])
+        ratio = {k: (b[k] / a[k] if a[k] else math.inf) for k in ("median", "p90", "worst")}
+        per = {m: (y / x if x > 0 else math.inf) for m, (x, y) in pairs.items()}
+        rows.append({"scenes": scenes, "noise": noise, "model": model, "n": len(pairs), "noise_free": a, "noisy": b,
+                     "ratio": ratio, "median_material_ratio": float(np.median(list(per.values()))),
+                     f"over_{NOISE_FACTOR}x": sorted((m for m, r in per.items() if r > NOISE_FACTOR), key=lambda m: -per[m]),
+                     "errors": {m: list(p) for m, p in pairs.items()}})
+    return rows
+
+
+def table_vs_microfacet(result: MeasuredResult) -> list[dict]:
+    """Per (scenes, noise), table model (:data:`TABLES`) and material group (:data:`MATERIAL_GROUPS`): on how many
+    of the group's materials the table relights better than ``microfacet``, and both medians.  Empty without
+    ``microfacet``."""
+    import re
+
+    rows = []
+    if "microfacet" not in result.models:
+        return rows
+    for (scenes, noise), by_mat in _groups(result).items():
+        for table in (t for t in TABLES if t in result.models):
+            for group, pattern in MATERIAL_GROUPS.items():
+                pairs = [(v[table].error, v["microfacet"].error) for m, v in by_mat.items()
+                         if re.search(pattern, m) and table in v and "microfacet" in v]
+                pairs = [p for p in pairs if all(math.isfinite(x) for x in p)]
+                if pairs:
+                    t, mf = np.array(pairs).T
+                    rows.append({"scenes": scenes, "noise": noise, "table": table, "group": group, "n": len(pairs),
+                                 "table_better": int(np.sum(t < mf)), "table_median": float(np.median(t)),
+                                 "microfacet_median": float(np.median(mf))})
     return rows
 
 
@@ -147,7 +211,24 @@ def format_summary(result: MeasuredResult) -> str:
             note = f"{r['failed']} FAILED; " + note
         lines.append(f"{r['scenes']:>6} {r['noise']:>5g} {r['subset']:<8} {r['model'][:14]:<14} {r['n']:>3} "
                      f"{_pct(r['median']):>7} {_pct(r['p90']):>7} {_pct(r['worst']):>7} {fit_s:>6}{extra}  {note}")
-    return f"Summary: relighting error (%) under {probe} (other probes: median/worst)\n" + "\n".join(lines)
+    text = f"Summary: relighting error (%) under {probe} (other probes: median/worst)\n" + "\n".join(lines)
+    noise = noise_ratios(result)
+    if noise:
+        text += f"\n\nNoise: {AUTO} with noise against noise-free on the same materials (ratio; tolerated: {NOISE_FACTOR}x)"
+        for r in noise:
+            over = r[f"over_{NOISE_FACTOR}x"]
+            listed = ", ".join(f"{m} {100 * r['errors'][m][0]:.2f} -> {100 * r['errors'][m][1]:.2f}%" for m in over[:5])
+            text += (f"\n  {r['scenes']} scene(s), noise {r['noise']:g}, {r['n']} materials: median {_pct(r['noisy']['median']).strip()}% "
+                     f"({r['ratio']['median']:.2f}x), p90 {_pct(r['noisy']['p90']).strip()}% ({r['ratio']['p90']:.2f}x), "
+                     f"worst {_pct(r['noisy']['worst']).strip()}% ({r['ratio']['worst']:.2f}x); per material median "
+                     f"{r['median_material_ratio']:.2f}x, over {NOISE_FACTOR}x on {len(over)}" + (f" ({listed})" if over else ""))
+    groups = table_vs_microfacet(result)
+    if groups:
+        text += "\n\nTables against microfacet on the groups that are not GGX-like (table better on k of n; medians %)"
+        for r in groups:
+            text += (f"\n  {r['scenes']} scene(s), noise {r['noise']:g}, {r['table']:<18} {r['group']:<7} {r['table_better']:>2} of "
+                     f"{r['n']:<2}  {_pct(r['table_median']).strip()} vs {_pct(r['microfacet_median']).strip()}")
+    return text
 
 
 def format_report(result: MeasuredResult) -> str:
@@ -163,7 +244,8 @@ def format_report(result: MeasuredResult) -> str:
                 for c in result.cases if c.failure]
     if failures:
         parts.append("Failed fits:\n" + "\n".join(failures))
-    return "\n\n".join(parts + [f"Time: {phases}; {cache}"])
+    summed = f" (phases summed over {result.workers} worker processes)" if result.workers > 1 else ""
+    return "\n\n".join(parts + [f"Time{summed}: {phases}; {cache}"])
 
 
 def result_to_json(result: MeasuredResult) -> dict:
@@ -177,7 +259,8 @@ def result_to_json(result: MeasuredResult) -> dict:
                       "models": list(result.models)},
             "materials": [{"name": m.name, "path": str(m.path) if m.path else None, "held_out": m.held_out}
                           for m in result.materials],
-            "summary": summarize(result), "cases": cases, "phases_seconds": result.phases,
+            "summary": summarize(result), "noise_ratios": noise_ratios(result), "table_vs_microfacet": table_vs_microfacet(result),
+            "cases": cases, "phases_seconds": result.phases, "workers": result.workers,
             "cache": {"hits": result.cache_hits, "misses": result.cache_misses}}
 
 
@@ -196,7 +279,7 @@ def result_from_json(data: dict) -> MeasuredResult:
     done = {c.material for c in cases}
     materials = [Material(m["name"], None, None, m["held_out"]) for m in data["materials"] if m["name"] in done]
     return MeasuredResult(cases, setup, tuple(s["scene_counts"]), tuple(s["noises"]), tuple(s["models"]), materials,
-                          phases=dict(data.get("phases_seconds", {})))
+                          phases=dict(data.get("phases_seconds", {})), workers=int(data.get("workers", 1)))
 
 
 PLOT_CEILING = 2.0

@@ -5,9 +5,10 @@ cache), then every noise level is fitted (materials in a fixed random order, so
 that the results so far, written to ``checkpoint``, and the progress bar's ETA are
 a fair sample of the whole run): one ``auto`` fit
 gives every candidate model (:func:`brdfrig.evaluate.measured.fit_all_and_relight`),
-models it did not fit are fitted alone (fitter failures are recorded as failed cases).  One untimed warm-up fit of every model on a
-small subset of the first material's pixels runs before the first timed fit (numba
-kernels load, tables get built).  The optional peer (``--peer mitsuba``:
+models it did not fit are fitted alone (fitter failures are recorded as failed cases).  One untimed warm-up fit of
+every model on a small subset of the first material's pixels runs in each process before its first timed fit
+(numba kernels load, tables get built).  With ``workers`` > 1 the materials are shared out to Dask worker
+processes of a local cluster (:func:`run_measured_benchmark`).  The optional peer (``--peer mitsuba``:
 :mod:`brdfrig.evaluate.mitsuba_peer`) fits Mitsuba's ``principled`` BSDF to the
 same (noisy) pixels of the first scene, in one-scene runs only, and is relit by
 Mitsuba: one more "model" named ``peer:mitsuba``.
@@ -29,6 +30,7 @@ from brdfrig.fit.scene import Scene
 __all__ = ["MeasuredResult", "run_measured_benchmark", "run_from_args", "PEER_PREFIX"]
 
 PEER_PREFIX = "peer:"
+CPU_KEY = "CPU, all threads"
 WARMUP_STRIDE = 23
 """The warm-up fits use every WARMUP_STRIDE-th pixel of the first material's sphere."""
 
@@ -37,7 +39,9 @@ WARMUP_STRIDE = 23
 class MeasuredResult:
     """Every case of a run, the setups, the references of the headline cases, and where the time went.
 
-    ``truths`` maps ``(scenes, material name)`` to its :class:`Truth` (kept for the sphere images).
+    ``phases`` maps a phase to seconds: wall seconds of each phase summed over the materials (over the
+    ``workers`` processes side by side when more than one), ``"CPU, all threads"`` the process CPU seconds of
+    the material runs, ``"total"`` the run's wall seconds.  ``truths`` maps ``(scenes, material name)`` to its :class:`Truth` (kept for the sphere images).
     """
 
     cases: list[CaseResult]
@@ -50,6 +54,7 @@ class MeasuredResult:
     phases: dict[str, float] = field(default_factory=dict)
     cache_hits: int = 0
     cache_misses: int = 0
+    workers: int = 1
 
 
 def _peer_fit(name: str):
@@ -120,13 +125,71 @@ def _robust_all(truth: Truth, models, noise: float, seed: int) -> list[CaseResul
         return [_robust(truth, m, noise, seed) for m in models]
 
 
+@dataclass
+class _MaterialRun:
+    """What :func:`_run_material` returns: the truth, its cases, seconds per phase, ground-truth cache use."""
+
+    truth: Truth
+    cases: list[CaseResult]
+    phases: dict[str, float]
+    cache_hits: int
+    cache_misses: int
+
+
+_WARMED: set = set()
+"""Model tuples this process has warmed up (:func:`_warm_up`): once per process, the first material's pixels."""
+
+
+def _phase_keys(count: int) -> tuple[str, str]:
+    label = f"{count} scene{'s' if count > 1 else ''}"
+    return f"ground truth, {label}", f"fits, {label}"
+
+
+def _run_material(material: Material, setup: CaseSetup, models: tuple, noises: tuple, seed: int, cache_dir: Path | None,
+                  peer: str | None, warm_up: bool, threads: int | None = None) -> _MaterialRun:
+    """One material's ground truth (rendered or from the cache) and its fits at every noise level (and the peer's,
+    one scene only).  ``threads``: numba threads of this process (a Dask worker's share of the cores)."""
+    if threads is not None:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    c0 = time.process_time()
+    gt_key, fit_key = _phase_keys(setup.scenes)
+    cache = make_cache() if cache_dir is None else make_cache(cache_dir)
+    phases = {}
+    t0 = time.perf_counter()
+    truth = render_truth(material, setup, cache)
+    phases[gt_key] = time.perf_counter() - t0
+    if warm_up and models not in _WARMED:
+        t0 = time.perf_counter()
+        try:
+            _warm_up(truth, models)
+        except Exception:  # noqa: BLE001 - a failing model is reported by its timed fits
+            pass
+        _WARMED.add(models)
+        phases["warm-up"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cases = []
+    for noise in noises:
+        cases += _robust_all(truth, models, noise, seed)
+        if peer and setup.scenes == 1:  # the peer fits one image
+            cases.append(_robust_peer(truth, PEER_PREFIX + peer, noise, seed, _peer_fit(peer)))
+    phases[fit_key] = time.perf_counter() - t0
+    phases[CPU_KEY] = time.process_time() - c0
+    return _MaterialRun(truth, cases, phases, cache.hits, cache.misses)
+
+
 def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup = CaseSetup(), *,
                            scene_counts=(1,), noises=(0.0,), seed: int = 0, cache_dir: Path | None = None,
                            peer: str | None = None, progress: bool = True, warm_up: bool = True,
-                           checkpoint=None) -> MeasuredResult:
+                           checkpoint=None, workers: int = 1) -> MeasuredResult:
     """Run every case (see module docstring).  ``setup.scenes`` is replaced by each of ``scene_counts``;
     ``warm_up=False`` skips the untimed warm-up fits; ``checkpoint(result)`` (if given) is called after
-    each material's fits with the cases so far."""
+    each material's fits with the cases so far.  ``workers`` > 1: the materials are run by that many Dask worker
+    processes on this machine (a local cluster), each with its share of the cores as numba threads."""
+    import os
+    import sys
+
     from tqdm import tqdm
 
     models = tuple(models)
@@ -134,38 +197,46 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
     bad = [m for m in models if m not in known]
     if bad:
         raise InputError(f"unknown model(s) {bad}; the fitter offers {list(known)}")
-    peers = {PEER_PREFIX + peer: _peer_fit(peer)} if peer else {}
-    cache = make_cache() if cache_dir is None else make_cache(cache_dir)
-    result = MeasuredResult([], setup, tuple(scene_counts), tuple(noises), models + tuple(peers), list(materials))
-    phases = result.phases
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1, got {workers}")
+    if peer:
+        _peer_fit(peer)  # InputError now, not in every task
+    result = MeasuredResult([], setup, tuple(scene_counts), tuple(noises), models + ((PEER_PREFIX + peer,) if peer else ()),
+                            list(materials), workers=workers)
+    # A fixed random order: results so far (and the ETA) are a fair sample of all materials.
+    order = [materials[k] for k in np.random.default_rng(0).permutation(len(materials))]
+    jobs = [(replace(setup, scenes=int(count)), m) for count in scene_counts for m in order]
     for count in scene_counts:
-        s = replace(setup, scenes=int(count))
-        label = f"{count} scene{'s' if count > 1 else ''}"
-        gt_key, fit_key = f"ground truth, {label}", f"fits, {label}"
-        phases[gt_key] = phases[fit_key] = 0.0
-        # A fixed random order: results so far (and the ETA) are a fair sample of all materials.
-        order = [materials[k] for k in np.random.default_rng(0).permutation(len(materials))]
-        for i, m in enumerate(tqdm(order, desc=label, unit="material", disable=not progress)):
-            t0 = time.perf_counter()
-            truth = result.truths[(count, m.name)] = render_truth(m, s, cache)
-            phases[gt_key] += time.perf_counter() - t0
-            if warm_up and i == 0 and count == scene_counts[0]:
-                t0 = time.perf_counter()
-                try:
-                    _warm_up(truth, models)
-                except Exception:  # noqa: BLE001 - a failing model is reported by its timed fits
-                    pass
-                phases["warm-up"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            for noise in noises:
-                result.cases += _robust_all(truth, models, noise, seed)
-                for model, peer_case in peers.items():
-                    if count == 1:  # the peer fits one image
-                        result.cases.append(_robust_peer(truth, model, noise, seed, peer_case))
-            phases[fit_key] += time.perf_counter() - t0
-            if checkpoint is not None:
-                checkpoint(result)
-    result.cache_hits, result.cache_misses = cache.hits, cache.misses
+        for key in _phase_keys(int(count)):
+            result.phases[key] = 0.0
+    desc = "materials" if len(scene_counts) == 1 else "materials x scene counts"
+    bar = tqdm(total=len(jobs), desc=desc, unit="run", file=sys.stderr, disable=not progress, dynamic_ncols=True)
+
+    def done(run: _MaterialRun) -> None:
+        result.truths[(run.truth.setup.scenes, run.truth.material.name)] = run.truth
+        result.cases += run.cases
+        for key, seconds in run.phases.items():
+            result.phases[key] = result.phases.get(key, 0.0) + seconds
+        result.cache_hits += run.cache_hits
+        result.cache_misses += run.cache_misses
+        bar.update()
+        if checkpoint is not None:
+            checkpoint(result)
+
+    args = (models, tuple(noises), seed, cache_dir, peer, warm_up)
+    if workers == 1:
+        for s, m in jobs:
+            done(_run_material(m, s, *args))
+    else:
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+                Client(cluster) as client:
+            futures = [client.submit(_run_material, m, s, *args, threads, pure=False) for s, m in jobs]
+            for fut in as_completed(futures):
+                done(fut.result())
+    bar.close()
     return result
 
 
@@ -174,7 +245,7 @@ def run_from_args(args) -> int:
     ``--probes``, ``--no-progress``), print the table and summary, write PNGs and JSON into ``--out``."""
     from brdfrig.evaluate.measured_report import format_report, write_outputs, write_partial
 
-    for name, value in (("--size", args.size), ("--env-rows", args.env_rows)):
+    for name, value in (("--size", args.size), ("--env-rows", args.env_rows), ("--workers", args.workers)):
         if value < 1:
             raise InputError(f"{name} must be a positive integer, got {value}")
     for noise in args.noise:
@@ -184,13 +255,12 @@ def run_from_args(args) -> int:
                  else list_materials(args.measured_dir))
     models = tuple(args.models) if args.models else model_names()
     setup = CaseSetup(args.size, args.fit_probe, tuple(args.relight_probes), args.env_rows, 1, args.probes)
-    t0, c0 = time.perf_counter(), time.process_time()
+    t0 = time.perf_counter()
     result = run_measured_benchmark(materials, models, setup, scene_counts=tuple(args.scenes), noises=tuple(args.noise),
                                     seed=args.seed, cache_dir=args.cache or Path(args.out) / "gt-cache", peer=args.peer,
                                     progress=not args.no_progress, warm_up=not args.no_warm_up,
-                                    checkpoint=lambda r: write_partial(r, Path(args.out)))
+                                    checkpoint=lambda r: write_partial(r, Path(args.out)), workers=args.workers)
     result.phases["total"] = time.perf_counter() - t0
-    result.phases["total CPU (all threads)"] = time.process_time() - c0
     print(format_report(result), flush=True)
     for path in write_outputs(result, Path(args.out)):
         print(f"wrote {path.resolve()}")

@@ -88,7 +88,7 @@ from brdfrig.fit.microfacet import _check_scenes, _subsample
 from brdfrig.fit.quadrature import LobeQuadrature, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment, Scene
 
-__all__ = ["BivariateBRDF", "fit_bivariate", "project_to_nodes", "DEFAULT_NH", "DEFAULT_ND"]
+__all__ = ["BivariateBRDF", "fit_bivariate", "predict_tables", "project_to_nodes", "DEFAULT_NH", "DEFAULT_ND"]
 
 DEFAULT_NH = 24
 """Nodes in ``theta_h`` (sqrt-spaced, 0..90 degrees)."""
@@ -146,15 +146,21 @@ HALF_PI = 0.5 * math.pi
 
 
 @numba.njit(cache=True, fastmath=False)
-def _node_coords(cos_i: float, cos_o: float, cos_io: float, nh: int, nd: int) -> tuple[int, float, int, float]:
-    """Lower node indices and fractions ``(a, fu, b, ft)`` of the bilinear cell holding (theta_h, theta_d)."""
+def _hd_fractions(cos_i: float, cos_o: float, cos_io: float) -> tuple[float, float]:
+    """``(sqrt(theta_h / (pi/2)), theta_d / (pi/2))``, each in [0, 1], of light and view at these cosines."""
     cd = math.sqrt(max(0.5 * (1.0 + cos_io), 0.0))
     if cd > 1e-12:
         ch = min(max((cos_i + cos_o) / (2.0 * cd), 0.0), 1.0)
     else:
         ch = 0.0
-    u = math.sqrt(math.acos(ch) / HALF_PI) * (nh - 1)
-    t = math.acos(min(cd, 1.0)) / HALF_PI * (nd - 1)
+    return math.sqrt(math.acos(ch) / HALF_PI), math.acos(min(cd, 1.0)) / HALF_PI
+
+
+@numba.njit(cache=True, fastmath=False)
+def _cell(su: float, st: float, nh: int, nd: int) -> tuple[int, float, int, float]:
+    """Lower node indices and fractions ``(a, fu, b, ft)`` of the bilinear cell holding :func:`_hd_fractions` ``(su, st)``."""
+    u = su * (nh - 1)
+    t = st * (nd - 1)
     a = min(int(u), nh - 2)
     b = min(int(t), nd - 2)
     return a, min(u - a, 1.0), b, min(t - b, 1.0)
@@ -194,7 +200,8 @@ def _design_kernel(normals: np.ndarray, q: LobeQuadrature, nh: int, nd: int) -> 
         row = out[i]
         for j in range(dirs.shape[0]):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
-            a, fu, b, ft = _node_coords(cos_i, nz, dirs[j, 2], nh, nd)
+            su, st = _hd_fractions(cos_i, nz, dirs[j, 2])
+            a, fu, b, ft = _cell(su, st, nh, nd)
             c2 = _cos2_phi_d(nx, ny, nz, dirs[j, 0], dirs[j, 1], dirs[j, 2])
             k = a * nd + b
             w00 = (1.0 - fu) * (1.0 - ft) * cos_i
@@ -217,11 +224,12 @@ def _design_kernel(normals: np.ndarray, q: LobeQuadrature, nh: int, nd: int) -> 
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _render_kernel(normals: np.ndarray, q: LobeQuadrature, tables: np.ndarray) -> np.ndarray:
-    """Radiance (N, C) of the tables (2, C, nh, nd) (in-plane, cross), same quadrature as :func:`_design_kernel`."""
-    n_pix = normals.shape[0]
-    _, nc, nh, nd = tables.shape
-    out = np.zeros((n_pix, nc))
+def _render_kernel(normals: np.ndarray, q: LobeQuadrature, tables) -> np.ndarray:
+    """Radiance (M, N, C) of each of the M tables (2, C, nh, nd) (in-plane, cross; a typed list, grids may
+    differ), same quadrature as :func:`_design_kernel`: the samples and their angles are computed once for all."""
+    n_pix, n_tab = normals.shape[0], len(tables)
+    nc = q.wrad.shape[1]
+    out = np.zeros((n_tab, n_pix, nc))
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         if nz <= 0.0:
@@ -229,18 +237,21 @@ def _render_kernel(normals: np.ndarray, q: LobeQuadrature, tables: np.ndarray) -
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
         for j in range(dirs.shape[0]):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
-            a, fu, b, ft = _node_coords(cos_i, nz, dirs[j, 2], nh, nd)
+            su, st = _hd_fractions(cos_i, nz, dirs[j, 2])
             c2 = _cos2_phi_d(nx, ny, nz, dirs[j, 0], dirs[j, 1], dirs[j, 2])
-            w00 = (1.0 - fu) * (1.0 - ft)
-            w01 = (1.0 - fu) * ft
-            w10 = fu * (1.0 - ft)
-            w11 = fu * ft
-            for c in range(nc):
-                tp = tables[0, c]
-                tq = tables[1, c]
-                rho_p = w00 * tp[a, b] + w01 * tp[a, b + 1] + w10 * tp[a + 1, b] + w11 * tp[a + 1, b + 1]
-                rho_q = w00 * tq[a, b] + w01 * tq[a, b + 1] + w10 * tq[a + 1, b] + w11 * tq[a + 1, b + 1]
-                out[i, c] += wrad[j, c] * (rho_q + c2 * (rho_p - rho_q)) * cos_i
+            for m in range(n_tab):
+                tab = tables[m]
+                a, fu, b, ft = _cell(su, st, tab.shape[2], tab.shape[3])
+                w00 = (1.0 - fu) * (1.0 - ft)
+                w01 = (1.0 - fu) * ft
+                w10 = fu * (1.0 - ft)
+                w11 = fu * ft
+                for c in range(nc):
+                    tp = tab[0, c]
+                    tq = tab[1, c]
+                    rho_p = w00 * tp[a, b] + w01 * tp[a, b + 1] + w10 * tp[a + 1, b] + w11 * tp[a + 1, b + 1]
+                    rho_q = w00 * tq[a, b] + w01 * tq[a, b + 1] + w10 * tq[a + 1, b] + w11 * tq[a + 1, b + 1]
+                    out[m, i, c] += wrad[j, c] * (rho_q + c2 * (rho_p - rho_q)) * cos_i
     return out
 
 
@@ -343,7 +354,7 @@ class BivariateBRDF:
         """Radiance (N, C) seen from ``v = (0, 0, 1)``: the fit's own quadrature of the rendering integral."""
         if env.channels != self.channels:
             raise ValueError(f"BRDF has {self.channels} channels but the environment has {env.channels}")
-        return _render_kernel(_normals(normals), lobe_quadrature(env), self.tables)
+        return predict_tables([self], env, normals)[0]
 
     def to_dict(self) -> dict:
         return {"model": self.model, "nh": int(self.tables.shape[2]), "nd": int(self.tables.shape[3]),
@@ -357,6 +368,23 @@ class BivariateBRDF:
             if table.ndim != 3 or table.shape[1:] != (int(d["nh"]), int(d["nd"])):
                 raise ValueError(f"bivariate {key!r} has shape {table.shape}, expected (C, nh={d['nh']}, nd={d['nd']})")
         return cls(*tables)
+
+
+def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
+    """Radiance (N, C) of each :class:`BivariateBRDF` in ``brdfs`` at unit ``normals`` under ``env``, seen from
+    ``v = (0, 0, 1)``, by the quadrature's defaults.
+
+    One pass over the quadrature samples serves every table (their grids may differ): the samples and their
+    angles cost about 1 ms per pixel on a 128 x 64 map, each further table's lookups about a third of that.
+    """
+    brdfs = list(brdfs)
+    for b in brdfs:
+        if env.channels != b.channels:
+            raise ValueError(f"BRDF has {b.channels} channels but the environment has {env.channels}")
+    if not brdfs:
+        return []
+    tables = numba.typed.List([b.tables for b in brdfs])
+    return list(_render_kernel(_normals(normals), lobe_quadrature(env), tables))
 
 
 def second_differences(nh: int, nd: int, d_weight: float = 1.0) -> np.ndarray:

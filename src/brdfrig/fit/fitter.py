@@ -314,8 +314,7 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
         envs = other_lightings(data.scenes[0].env)
         normals, weights = estimate_pixels(data)
         preds = {}
-        for m, brdf in fitter.brdfs.items():
-            pred = predict_under(brdf, envs, normals)
+        for m, pred in predict_under(fitter.brdfs, envs, normals).items():
             cands[m].radiance_check = cands[m].radiance_check or radiance_problem(pred, "other lightings")
             if np.all(np.isfinite(pred)):
                 preds[m] = pred
