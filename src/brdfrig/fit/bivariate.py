@@ -351,9 +351,8 @@ class BivariateBRDF:
         return np.where(below[:, None], 0.0, out).reshape(shape + (self.channels,))
 
     def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
-        """Radiance (N, C) seen from ``v = (0, 0, 1)``: the fit's own quadrature of the rendering integral."""
-        if env.channels != self.channels:
-            raise ValueError(f"BRDF has {self.channels} channels but the environment has {env.channels}")
+        """Radiance (N, C) seen from ``v = (0, 0, 1)``: the fit's own quadrature of the rendering integral
+        (:func:`predict_tables`)."""
         return predict_tables([self], env, normals)[0]
 
     def to_dict(self) -> dict:
