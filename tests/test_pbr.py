@@ -188,3 +188,42 @@ def test_sharp_lobe_quadrature_converges():
     reference = render_sharp(sharp, normals, env, 20.0, 20)
     assert relative_rms(sharp.predict(env, normals), reference) < 0.005  # measured 4e-4 at 128 x 64
     assert relative_rms(render_groundtruth(sharp, normals, env), reference) > 0.02  # cell centres: 13% at 128 x 64
+
+
+@pytest.mark.parametrize("name", list(FAMILIES))
+def test_channels_share_the_shape_to_the_last_bit(name):
+    """``rho_channels`` with the shape evaluated once equals ``rho_channel`` per channel exactly (the renders'
+    speed-up must not change a value), also where a channel's amplitude is 0."""
+    from brdfrig.fit.rho import rho_channel, rho_channels, shares_shape
+
+    brdf = FAMILIES[name]
+    params = np.array(brdf.kernel_params(), dtype=np.float64)
+    params[1, 0] = 0.0  # one channel without its first amplitude
+    assert shares_shape(brdf.kind, params)
+    rng = np.random.default_rng(5)
+    wi, wo = rng.normal(size=(2, 400, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    out = np.empty(params.shape[0])
+    for a, b in zip(wi, wo):
+        rho_channels(brdf.kind, params, True, a[2], b[2], float(a @ b), out)
+        assert out.tolist() == [rho_channel(brdf.kind, p, a[2], b[2], float(a @ b)) for p in params]
+    other = params.copy()
+    other[2, 3] *= 1.5  # another roughness in one channel: not shared
+    assert not shares_shape(brdf.kind, other)
+
+
+def test_fuzz_column_is_the_sheen_lobe():
+    """The sheen fit's fuzz column equals the unit-colour fuzz layer rendered by the generic kernel (to rounding:
+    the two multiply the cosine in another order)."""
+    from brdfrig.fit.groundtruth import render_fuzz, render_kernel, _kernel_inputs
+    from brdfrig.fit.pbr import layered_rows
+    from brdfrig.fit.rho import KIND_LAYERED
+
+    env, _, normals = _case(size=16)
+    row = layered_rows(np.array([[0.0, 0.0, 0.0, 1.0]]), 0.1, 1.5, 0.3, False, 1.0)
+    n, dirs, weighted, view = _kernel_inputs(normals, env, (0.0, 0.0, 1.0))
+    generic = render_kernel(KIND_LAYERED, np.repeat(row, env.channels, axis=0), n, dirs, weighted, view)
+    fuzz = render_fuzz(0.3, normals, env)
+    assert np.abs(fuzz).max() > 0
+    np.testing.assert_allclose(fuzz, generic, rtol=1e-13, atol=0)

@@ -33,12 +33,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from brdfrig.fit.rho import ggx_lobe, rho_channel
+from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe, rho_channels, shares_shape, sheen_lambda
 from brdfrig.fit.merl import half_diff, table_lookup
 from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
 
-__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis", "render_basis", "render_tabulated", "render_rho"]
+__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis", "render_fuzz", "render_tabulated", "render_rho"]
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
@@ -49,6 +49,7 @@ def render_kernel(
     dirs: np.ndarray,
     weighted_radiance: np.ndarray,
     view: np.ndarray,
+    shared: bool = False,
 ) -> np.ndarray:
     """Quadrature of the rendering integral.
 
@@ -65,6 +66,8 @@ def render_kernel(
         Radiance times solid angle of each sample.
     view : (3,) float64
         Unit direction toward the viewer.
+    shared : bool
+        The rows share their shape (:func:`brdfrig.fit.rho.shares_shape`): evaluated once per sample.
 
     Returns
     -------
@@ -81,12 +84,14 @@ def render_kernel(
         if cos_o <= 0.0:
             continue
         acc = np.zeros(nc)
+        val = np.empty(nc)
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
+            rho_channels(kind, params, shared, cos_i, cos_o, cos_io[j], val)
             for c in range(nc):
-                acc[c] += weighted_radiance[j, c] * rho_channel(kind, params[c], cos_i, cos_o, cos_io[j]) * cos_i
+                acc[c] += weighted_radiance[j, c] * val[c] * cos_i
         for c in range(nc):
             out[i, c] = acc[c]
     return out
@@ -124,31 +129,27 @@ def _ggx_basis_kernel(
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _basis_kernel(kind: int, rows: np.ndarray, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray) -> np.ndarray:
-    """Quadrature of ``K`` BRDF rows of one kind under every channel's lighting (see :func:`render_basis`)."""
+def _fuzz_kernel(alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Quadrature of the unit-colour Charlie sheen lobe (see :func:`render_fuzz`)."""
     n_pix = normals.shape[0]
     n_env = dirs.shape[0]
     nc = weighted_radiance.shape[1]
-    nk = rows.shape[0]
-    out = np.zeros((n_pix, nc, nk))
+    out = np.zeros((n_pix, nc))
     cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         cos_o = nx * view[0] + ny * view[1] + nz * view[2]
         if cos_o <= 0.0:
             continue
-        acc = np.zeros((nc, nk))
-        val = np.empty(nk)
+        lambda_o = sheen_lambda(cos_o, alpha)
+        acc = np.zeros(nc)
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
-            for k in range(nk):
-                val[k] = rho_channel(kind, rows[k], cos_i, cos_o, cos_io[j]) * cos_i
+            val = charlie_sheen_given(cos_i, cos_o, cos_io[j], alpha, lambda_o) * cos_i
             for c in range(nc):
-                lw = weighted_radiance[j, c]
-                for k in range(nk):
-                    acc[c, k] += lw * val[k]
+                acc[c] += weighted_radiance[j, c] * val
         out[i] = acc
     return out
 
@@ -182,22 +183,18 @@ def render_ggx_basis(alpha: float, normals: np.ndarray, env: Environment, view=(
     return _ggx_basis_kernel(float(alpha), normals, dirs, weighted, view)
 
 
-def render_basis(kind: int, rows: np.ndarray, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Renders of ``K`` parameter rows of one BRDF kind, each under every channel of ``env``.
+def render_fuzz(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Renders of the unit-colour Charlie sheen lobe of roughness ``alpha`` (:func:`brdfrig.fit.rho.charlie_sheen`),
+    the fuzz column of the sheen fit; its ``Lambda(cos_o)`` is computed once per pixel.
 
-    Column ``k`` of channel ``c`` is the radiance of a BRDF with parameter row ``rows[k]`` (the same
-    for every channel) lit by channel ``c``: the linear parts of a model whose parameter row is linear
-    in some amplitudes (the physically based fits of :mod:`brdfrig.fit.pbr`) render in one pass.
-
-    Parameters and conventions as :func:`render_groundtruth`; ``rows`` is (K, P) float64.
+    Parameters and conventions as :func:`render_groundtruth`.
 
     Returns
     -------
-    (N, C, K) float64.
+    (N, C) float64.
     """
     normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
-    rows = np.ascontiguousarray(np.atleast_2d(np.asarray(rows, dtype=np.float64)))
-    return _basis_kernel(int(kind), rows, normals, dirs, weighted, view)
+    return _fuzz_kernel(float(alpha), normals, dirs, weighted, view)
 
 
 def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -226,7 +223,8 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
         params = np.repeat(params, channels, axis=0)
     if params.shape[0] != channels:
         raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {channels}")
-    return render_kernel(int(brdf.kind), np.ascontiguousarray(params), normals, dirs, weighted, view)
+    params = np.ascontiguousarray(params)
+    return render_kernel(int(brdf.kind), params, normals, dirs, weighted, view, shares_shape(int(brdf.kind), params))
 
 
 # ----------------------------------------------------------------------------- measured BRDFs

@@ -65,11 +65,11 @@ from brdfrig.fit.analytic import (
     charlie_sheen,
     fresnel_dielectric,
     oren_nayar_ab,
-    rho_channel,
     smith_lambda,
 )
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
+from brdfrig.fit.rho import rho_channels, shares_shape
 
 __all__ = [
     "COS_NODES",
@@ -302,8 +302,9 @@ def lobe_rule(alpha: float, env, width: float = 0.5) -> tuple[float, int] | None
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray) -> np.ndarray:
-    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of an analytic kind, view +z."""
+def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray, shared: bool) -> np.ndarray:
+    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of an analytic kind, view +z
+    (``shared``: :func:`brdfrig.fit.rho.shares_shape`)."""
     n_pix = normals.shape[0]
     nc = params.shape[0]
     out = np.zeros((n_pix, nc))
@@ -313,10 +314,12 @@ def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray) -> np.n
             continue
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
         acc = np.zeros(nc)
+        val = np.empty(nc)
         for k in range(dirs.shape[0]):
             cos_i = nx * dirs[k, 0] + ny * dirs[k, 1] + nz * dirs[k, 2]
+            rho_channels(kind, params, shared, cos_i, nz, dirs[k, 2], val)
             for c in range(nc):
-                acc[c] += wrad[k, c] * rho_channel(kind, params[c], cos_i, nz, dirs[k, 2]) * cos_i
+                acc[c] += wrad[k, c] * val[c] * cos_i
         out[i] = acc
     return out
 
@@ -333,7 +336,8 @@ def render_sharp(brdf, normals: np.ndarray, env, cone_deg: float, subdiv: int) -
     if params.shape[0] != env.channels:
         raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {env.channels}")
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-    return _sharp_kernel(int(brdf.kind), np.ascontiguousarray(params), lobe_quadrature(env, cone_deg, subdiv), normals)
+    params = np.ascontiguousarray(params)
+    return _sharp_kernel(int(brdf.kind), params, lobe_quadrature(env, cone_deg, subdiv), normals, shares_shape(int(brdf.kind), params))
 
 
 def _render(brdf, alpha: float, env, normals) -> np.ndarray:

@@ -57,14 +57,13 @@ from scipy.optimize import minimize_scalar
 
 from brdfrig.fit.analytic import (
     F82_COS,
-    KIND_LAYERED,
     LAYERED_HEAD,
     TABLE_SIZE,
     f82_q,
     ggx_lobe,
     table_lookup,
 )
-from brdfrig.fit.groundtruth import _kernel_inputs, render_basis
+from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
 from brdfrig.fit.microfacet import _check_scenes, _oren_nayar, _subsample, coarsen_environment
@@ -236,9 +235,8 @@ class _Data:
 
     def fuzz(self, fuzz_alpha: float) -> np.ndarray:
         """Weighted fuzz column (N, C) of unit colour."""
-        row = layered_rows(np.array([[0, 0, 0, 1.0]]), 0.1, 1.5, fuzz_alpha, False, 1.0)
         self.renders += 1
-        return np.concatenate([render_basis(KIND_LAYERED, row, n, e)[:, :, 0] for n, e in zip(self.normals, self.envs)]) * self.sqrt_w[:, None]
+        return np.concatenate([render_fuzz(fuzz_alpha, n, e) for n, e in zip(self.normals, self.envs)]) * self.sqrt_w[:, None]
 
 
 def shared_solve(per_channel: np.ndarray, shared: np.ndarray | None, target: np.ndarray, upper: np.ndarray):

@@ -40,10 +40,16 @@ __all__ = [
     "table_lookup",
     "fresnel_dielectric",
     "charlie_sheen",
+    "charlie_sheen_given",
+    "sheen_lambda",
     "f82_q",
     "layered_rho",
     "conductor_rho",
     "rho_channel",
+    "rho_channels",
+    "shares_shape",
+    "LAYERED_AMPLITUDES",
+    "CONDUCTOR_AMPLITUDES",
     "rho_from_cosines",
 ]
 
@@ -151,6 +157,12 @@ def charlie_sheen(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> fl
     ``D = (2 + 1/alpha) sin(theta_h)^(1/alpha) / (2 pi)``, ``V = 1 / ((1 + L(cos_i) + L(cos_o)) 4 cos_i cos_o)``;
     ``alpha = fuzz_roughness^2``; both cosines > 0.
     """
+    return charlie_sheen_given(cos_i, cos_o, cos_io, alpha, sheen_lambda(cos_o, alpha))
+
+
+@numba.njit(cache=True, fastmath=False)
+def charlie_sheen_given(cos_i: float, cos_o: float, cos_io: float, alpha: float, lambda_o: float) -> float:
+    """:func:`charlie_sheen` with ``lambda_o = sheen_lambda(cos_o, alpha)`` given (one per pixel, not per light sample)."""
     norm2 = 2.0 + 2.0 * cos_io
     if norm2 <= 1e-300:
         return 0.0
@@ -158,7 +170,7 @@ def charlie_sheen(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> fl
     sin2 = max(1.0 - cos_h * cos_h, 0.0)
     inv = 1.0 / alpha
     d = (2.0 + inv) * sin2 ** (0.5 * inv) / (2.0 * math.pi)
-    lam = _sheen_lambda(cos_i, alpha) + _sheen_lambda(cos_o, alpha)
+    lam = sheen_lambda(cos_i, alpha) + lambda_o
     return d / ((1.0 + lam) * 4.0 * cos_i * cos_o)
 
 
@@ -174,7 +186,8 @@ def _sheen_l(x: float, alpha: float) -> float:
 
 
 @numba.njit(cache=True, fastmath=False)
-def _sheen_lambda(cos_t: float, alpha: float) -> float:
+def sheen_lambda(cos_t: float, alpha: float) -> float:
+    """Estevez-Kulla ``Lambda(cos_t)`` of the Charlie sheen lobe of ``alpha``."""
     if cos_t < 0.5:
         return math.exp(_sheen_l(cos_t, alpha))
     return math.exp(2.0 * _sheen_l(0.5, alpha) - _sheen_l(1.0 - cos_t, alpha))
@@ -187,6 +200,40 @@ def f82_q(cos_d: float) -> float:
     return cos_d * (1.0 - cos_d) ** 6 / (cb * (1.0 - cb) ** 6)
 
 
+LAYERED_AMPLITUDES = (0, 1, 2, 5)
+"""Columns of a layered row that enter the BRDF linearly (``dA, dB, specular_weight, fuzz_color``); the others
+are its shape."""
+
+
+@numba.njit(cache=True, fastmath=False)
+def _layered_terms(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float, base: bool, spec: bool, fuzz: bool):
+    """The shape factors ``(retro, t, lobe, m, fresnel, sheen)`` of :func:`layered_rho`, those of the parts not asked for 0."""
+    retro = t = lobe = m = fres = sheen = 0.0
+    if base:
+        retro = max(cos_io - cos_i * cos_o, 0.0) / max(cos_i, cos_o)
+        t = table_lookup(p, LAYERED_HEAD, cos_i) * table_lookup(p, LAYERED_HEAD, cos_o) * p[7]
+    if spec:
+        lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
+        m = min(table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_i), table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_o))
+        fres = fresnel_dielectric(cos_d, p[4])
+    if fuzz:
+        sheen = charlie_sheen(cos_i, cos_o, cos_io, p[6])
+    return retro, t, lobe, m, fres, sheen
+
+
+@numba.njit(cache=True, fastmath=False)
+def _layered_combine(p: np.ndarray, retro: float, t: float, lobe: float, m: float, fres: float, sheen: float) -> float:
+    """:func:`layered_rho` from the shape factors of :func:`_layered_terms` and the amplitudes of ``p``."""
+    out = 0.0
+    if p[0] != 0.0 or p[1] != 0.0:
+        out += t * (p[0] + p[1] * retro) / math.pi
+    if p[2] != 0.0:
+        out += p[2] * m * fres * lobe
+    if p[5] != 0.0:
+        out += p[5] * sheen
+    return out
+
+
 @numba.njit(cache=True, fastmath=False)
 def layered_rho(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
     """Fuzz over a GGX dielectric coating over a diffuse base (row layout :data:`LAYERED_HEAD`); cosines > 0.
@@ -194,24 +241,20 @@ def layered_rho(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> flo
     ``rho = fuzz_color sheen + m(i,o) w F_ior(h.wi) D G2 / (4 cos_i cos_o)
     + t(cos_i) t(cos_o) / norm (dA + dB retro) / pi`` with ``m = min(1 - E_fuzz(cos_i), 1 - E_fuzz(cos_o))``.
     """
-    out = 0.0
-    if p[0] != 0.0 or p[1] != 0.0:
-        retro = max(cos_io - cos_i * cos_o, 0.0) / max(cos_i, cos_o)
-        t = table_lookup(p, LAYERED_HEAD, cos_i) * table_lookup(p, LAYERED_HEAD, cos_o) * p[7]
-        out += t * (p[0] + p[1] * retro) / math.pi
-    if p[2] != 0.0:
-        lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
-        m = min(table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_i), table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_o))
-        out += p[2] * m * fresnel_dielectric(cos_d, p[4]) * lobe
-    if p[5] != 0.0:
-        out += p[5] * charlie_sheen(cos_i, cos_o, cos_io, p[6])
-    return out
+    retro, t, lobe, m, fres, sheen = _layered_terms(p, cos_i, cos_o, cos_io, p[0] != 0.0 or p[1] != 0.0, p[2] != 0.0, p[5] != 0.0)
+    return _layered_combine(p, retro, t, lobe, m, fres, sheen)
 
 
 @numba.njit(cache=True, fastmath=False)
 def conductor_rho(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> float:
     """GGX conductor with the F82-tint Fresnel in its linear form (:data:`CONDUCTOR_PARAMS`); cosines > 0."""
     lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
+    return _conductor_combine(p, lobe, cos_d)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _conductor_combine(p: np.ndarray, lobe: float, cos_d: float) -> float:
+    """:func:`conductor_rho` from its GGX lobe and ``cos_d`` (shared by the channels) and the amplitudes of ``p``."""
     s5 = (1.0 - cos_d) ** 5
     return (p[0] * (1.0 - s5) + p[1] * s5 - p[2] * f82_q(cos_d)) * lobe
 
@@ -243,6 +286,46 @@ def rho_channel(kind: int, p: np.ndarray, cos_i: float, cos_o: float, cos_io: fl
     # KIND_GGX: Schlick F = f0 + (f90 - f0) (1 - h.wi)^5
     lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
     return diffuse + (p[1] + (p[2] - p[1]) * (1.0 - cos_d) ** 5) * lobe
+
+
+CONDUCTOR_AMPLITUDES = (0, 1, 2)
+"""Columns of a conductor row that enter the BRDF linearly; the other (``alpha``) is its shape."""
+
+
+def shares_shape(kind: int, params: np.ndarray) -> bool:
+    """Whether the channels' rows (C, P) of a layered or conductor ``kind`` differ only in their amplitudes
+    (:data:`LAYERED_AMPLITUDES`, :data:`CONDUCTOR_AMPLITUDES`): then :func:`rho_channels` evaluates the shape once
+    for all channels."""
+    amplitudes = {KIND_LAYERED: LAYERED_AMPLITUDES, KIND_CONDUCTOR: CONDUCTOR_AMPLITUDES}.get(kind)
+    if amplitudes is None or params.shape[0] < 2:
+        return False
+    shape = np.ones(params.shape[1], dtype=bool)
+    shape[list(amplitudes)] = False
+    return bool(np.all(params[:, shape] == params[0, shape]))
+
+
+@numba.njit(cache=True, fastmath=False)
+def rho_channels(kind: int, params: np.ndarray, shared: bool, cos_i: float, cos_o: float, cos_io: float, out: np.ndarray) -> None:
+    """``out[c] = rho_channel(kind, params[c], ...)`` for every channel; with ``shared`` (:func:`shares_shape`) the
+    shape factors are computed once for all channels (the same values to the last bit)."""
+    nc = params.shape[0]
+    if not shared or cos_i <= 0.0 or cos_o <= 0.0:
+        for c in range(nc):
+            out[c] = rho_channel(kind, params[c], cos_i, cos_o, cos_io)
+        return
+    if kind == KIND_CONDUCTOR:
+        lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, params[0, 3])
+        for c in range(nc):
+            out[c] = _conductor_combine(params[c], lobe, cos_d)
+        return
+    base = spec = fuzz = False
+    for c in range(nc):
+        base = base or params[c, 0] != 0.0 or params[c, 1] != 0.0
+        spec = spec or params[c, 2] != 0.0
+        fuzz = fuzz or params[c, 5] != 0.0
+    retro, t, lobe, m, fres, sheen = _layered_terms(params[0], cos_i, cos_o, cos_io, base, spec, fuzz)
+    for c in range(nc):
+        out[c] = _layered_combine(params[c], retro, t, lobe, m, fres, sheen)
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
