@@ -33,7 +33,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe, rho_channels, shares_shape, sheen_lambda
+from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe, kernel_rows, rho_channels, sheen_lambda
 from brdfrig.fit.merl import half_diff, table_lookup
 from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
@@ -217,14 +217,8 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
     (N, C) float64 linear radiance, 0 where ``normal . view <= 0``.
     """
     normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
-    params = np.asarray(brdf.kernel_params(), dtype=np.float64)
-    channels = weighted.shape[1]
-    if params.shape[0] == 1 and channels > 1:
-        params = np.repeat(params, channels, axis=0)
-    if params.shape[0] != channels:
-        raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {channels}")
-    params = np.ascontiguousarray(params)
-    return render_kernel(int(brdf.kind), params, normals, dirs, weighted, view, shares_shape(int(brdf.kind), params))
+    params, shared = kernel_rows(brdf, weighted.shape[1])
+    return render_kernel(int(brdf.kind), params, normals, dirs, weighted, view, shared)
 
 
 # ----------------------------------------------------------------------------- measured BRDFs

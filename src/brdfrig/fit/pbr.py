@@ -69,7 +69,7 @@ from brdfrig.fit.analytic import (
 )
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
-from brdfrig.fit.rho import rho_channels, shares_shape
+from brdfrig.fit.rho import kernel_rows, rho_channels
 
 __all__ = [
     "COS_NODES",
@@ -330,14 +330,9 @@ def render_sharp(brdf, normals: np.ndarray, env, cone_deg: float, subdiv: int) -
     The ground truth's rule (:func:`brdfrig.fit.groundtruth.render_groundtruth`) with the cells within
     ``cone_deg`` of each mirror direction split ``subdiv x subdiv`` (:mod:`brdfrig.fit.quadrature`).
     """
-    params = np.asarray(brdf.kernel_params(), dtype=np.float64)
-    if params.shape[0] == 1 and env.channels > 1:
-        params = np.repeat(params, env.channels, axis=0)
-    if params.shape[0] != env.channels:
-        raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {env.channels}")
+    params, shared = kernel_rows(brdf, env.channels)
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-    params = np.ascontiguousarray(params)
-    return _sharp_kernel(int(brdf.kind), params, lobe_quadrature(env, cone_deg, subdiv), normals, shares_shape(int(brdf.kind), params))
+    return _sharp_kernel(int(brdf.kind), params, lobe_quadrature(env, cone_deg, subdiv), normals, shared)
 
 
 def _render(brdf, alpha: float, env, normals) -> np.ndarray:

@@ -48,6 +48,7 @@ __all__ = [
     "rho_channel",
     "rho_channels",
     "shares_shape",
+    "kernel_rows",
     "LAYERED_AMPLITUDES",
     "CONDUCTOR_AMPLITUDES",
     "rho_from_cosines",
@@ -302,6 +303,18 @@ def shares_shape(kind: int, params: np.ndarray) -> bool:
     shape = np.ones(params.shape[1], dtype=bool)
     shape[list(amplitudes)] = False
     return bool(np.all(params[:, shape] == params[0, shape]))
+
+
+def kernel_rows(brdf, channels: int) -> tuple[np.ndarray, bool]:
+    """``brdf.kernel_params()`` as contiguous float64 rows (``channels``, P), one row repeated to every channel, and
+    :func:`shares_shape` of them: what the render kernels take.  ValueError if the channel counts differ."""
+    params = np.asarray(brdf.kernel_params(), dtype=np.float64)
+    if params.shape[0] == 1 and channels > 1:
+        params = np.repeat(params, channels, axis=0)
+    if params.shape[0] != channels:
+        raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {channels}")
+    params = np.ascontiguousarray(params)
+    return params, shares_shape(int(brdf.kind), params)
 
 
 @numba.njit(cache=True, fastmath=False)
