@@ -17,10 +17,10 @@ from brdfrig.evaluate.bench import rotate_environment
 from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar
 from brdfrig.fit.brdffile import jsonable, load_brdf, save_brdf
 from brdfrig.fit.fitter import fit_brdf
-from brdfrig.fit.relight import SPREAD_CALIBRATION, other_lightings, predict_under, spread_estimates
+from brdfrig.fit.relight import SPREAD_CALIBRATION, loso_folds, other_lightings, predict_under, spread_estimates
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate, format_report
 from brdfrig.fit.select import choose, radiance_problem
-from test_fit_scenes import GGX_MATERIAL, make_scenes, probes, relight_error, sphere  # noqa: F401
+from test_fit_scenes import GGX_MATERIAL, make_scenes, probes, relight_error, rotations, sphere  # noqa: F401
 
 
 def test_loso_picks_the_model_that_relights_where_heldout_pixels_pick_the_wrong_one(probes):
@@ -62,6 +62,45 @@ def _with_errors(sizes: dict[str, float], seed: int) -> tuple[np.ndarray, dict[s
         noise = rng.standard_normal(truth.shape)
         preds[m] = truth + e * scale * noise / math.sqrt(float(np.mean(np.sum(noise**2, axis=(1, 2)))))
     return truth, preds
+
+
+@pytest.mark.parametrize("n, split, expected", [
+    (2, "arcs", [[0], [1]]),
+    (3, "arcs", [[0], [1], [2]]),
+    (3, "interleaved", [[0], [1], [2]]),
+    (7, "arcs", [[0, 1], [2, 3], [4, 5, 6]]),
+    (7, "interleaved", [[0, 3, 6], [1, 4], [2, 5]]),
+    (12, "arcs", [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]]),
+    (12, "interleaved", [[0, 3, 6, 9], [1, 4, 7, 10], [2, 5, 8, 11]]),
+])
+def test_loso_folds(n, split, expected):
+    """Arcs leave out runs of consecutive turns (twelve turns: arcs of four), interleaved folds every third turn."""
+    assert [f.tolist() for f in loso_folds(n, split)] == expected
+
+
+def test_loso_folds_refuse_an_unknown_split():
+    with pytest.raises(ValueError, match="unknown leave-one-scene-out split 'blocks'"):
+        loso_folds(12, "blocks")
+
+
+def test_auto_reports_the_chosen_fit_on_arcs_after_choosing_on_interleaved_folds(probes):
+    """Four turned scenes of a GGX sphere: the candidates' estimates come from interleaved folds, the report's from
+    arcs (a second leave-one-scene-out pass of the chosen model), and both are within 2x of the relighting error
+    under pisa (the ground-truth renderer)."""
+    fit_env, test_env = probes
+    normals, weights = sphere(16)
+    truth = GGX(**GGX_MATERIAL)
+    scenes = make_scenes(truth, rotations(fit_env, 4), normals, weights)
+    res = fit_brdf(scenes, model="auto", lmax=3, pmax=3, progress=False)
+    chosen = res.report.candidates[res.report.chosen_model].relight
+    reported = res.report.relight
+    true = relight_error(res.brdf, truth, test_env, normals)
+    print(f"{res.report.chosen_model}: interleaved {chosen.value:.4g}, arcs {reported.value:.4g}, relit under pisa {true:.4g}")
+    assert chosen.method == reported.method == "leave-one-scene-out"
+    assert "scene k in fold k mod 3" in chosen.detail and "3 runs of consecutive scenes" in reported.detail
+    assert reported.value != chosen.value
+    for value in (chosen.value, reported.value):
+        assert 0.5 * true <= value <= 2.0 * true
 
 
 def test_spread_split_recovers_independent_errors():

@@ -14,7 +14,9 @@ Pipeline (``docs/MATH.md``):
    per model (:func:`brdfrig.fit.stream.stream_model`) across solvers and priors; single-model fits
    (``microfacet``, ...) get the training pixels of each scene.
 5. Relighting estimate of every candidate under other lighting (:mod:`brdfrig.fit.relight`):
-   leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.
+   leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.  ``auto`` compares
+   its candidates on interleaved folds and, with more scenes than folds, reports the chosen fit's
+   estimate from folds of consecutive scenes (``"arcs"``); a requested model's estimate is the arcs'.
 6. Judgement and choice (:mod:`brdfrig.fit.select`): determinacy, finite non-negative predicted
    radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against the
    data-driven table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), with several
@@ -39,7 +41,7 @@ from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
 from brdfrig.fit.noise import scenes_noise
 from brdfrig.fit.references import shipped
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
-from brdfrig.fit.relight import estimate_pixels, loso_estimates, other_lightings, predict_under, spread_estimates
+from brdfrig.fit.relight import LOSO_MAX_FOLDS, estimate_pixels, loso_estimates, other_lightings, predict_under, spread_estimates
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
 from brdfrig.fit.select import choose, fit_warnings, judge, radiance_problem
@@ -283,8 +285,9 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         judge(cand, ident)
         if name in fitter.brdfs:
             cand.plausibility = plausibility(fitter.brdfs[name])
+    settings = (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables)
     if estimate:
-        _estimate(data, fitter, model, (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables))
+        _estimate(data, fitter, model, settings)
 
     if model == "auto":
         chosen, reason, selection = choose(cands, noise, one_image=len(scenes) == 1)
@@ -293,6 +296,10 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         reason = "requested" + ("" if cands[model].determined else " (WARNING: not determined by these data; see identifiability)")
     if chosen not in fitter.brdfs:
         raise ValueError(f"model {chosen!r} could not be fitted: {cands[chosen].to_dict()}")
+    relight = cands[chosen].relight or RelightEstimate(None, "none", "not estimated (estimate=False)")
+    if estimate and model == "auto" and len(scenes) > LOSO_MAX_FOLDS:  # the two splits differ
+        with data.clock("other"):
+            relight = loso_estimates(data, [chosen], lambda fold, ms: _refit(fold, ms, settings, True), "arcs")[chosen]
     report = FitReport(
         chosen_model=chosen, reason=reason, requested_model=model, solver=solver, lmax=lmax, pmax=pmax,
         n_scenes=len(scenes), pixels=counts, limb_margin_max_theta_deg=max_theta_deg, heldout_pixels=int(len(data.held)),
@@ -300,7 +307,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
                        "(relative) for two consecutive blocks"),
         unobservable_bands=ident.unobservable_bands, identifiability=ident.to_dict(),
         identifiability_summary=ident.summary(), candidates=cands, selection=selection,
-        relight=cands[chosen].relight or RelightEstimate(None, "none", "not estimated (estimate=False)"),
+        relight=relight,
         pixel_noise=noise, warnings=fit_warnings(cands[chosen], ident, counts),
     )
     report.seconds, report.stage_seconds = time.perf_counter() - t0, clock.report()
@@ -321,7 +328,8 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
         if len(data.scenes) >= 2:
             names = [m for m in fitter.brdfs if model == m or (cands[m].determined and cands[m].radiance_check is None)]
             names = sorted(names, key=lambda m: (m != model, cands[m].heldout_relative_rms or 0.0))[:LOSO_MAX_CANDIDATES]
-            estimates = loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, model == "auto"))
+            split = "interleaved" if model == "auto" else "arcs"  # auto chooses on one split, reports on the other
+            estimates = loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, model == "auto"), split)
         else:
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
     for m, est in estimates.items():

@@ -4,10 +4,13 @@ The held-out pixels of the fit's own lighting cannot see extrapolation error (MA
 can reproduce its image to 0.1% and relight at 40%).  Two estimates look at other lighting instead:
 
 - ``leave-one-scene-out`` (two or more scenes, :func:`loso_estimates`): the scenes are split into
-  ``min(n_scenes, LOSO_MAX_FOLDS)`` folds (scene k in fold ``k mod F``); each candidate is fitted again
-  on the other folds' pixels and predicts the left-out scenes' pixels under their own lighting; the
+  ``F = min(n_scenes, LOSO_MAX_FOLDS)`` folds (:func:`loso_folds`); each candidate is fitted again on
+  the other folds' pixels and predicts the left-out scenes' pixels under their own lighting; the
   estimate is the weighted relative RMS error over all left-out pixels.  It measures relighting (with
-  the pixels' noise).
+  the pixels' noise).  Two splits: ``"interleaved"`` (scene k in fold ``k mod F``) compares candidates
+  (``auto``'s choice), ``"arcs"`` (runs of consecutive scenes: on a turntable an arc of turns, the
+  left-out lighting not bracketed by fitted turns on both sides) estimates the error of the fit
+  reported, on a split other than the one it was chosen on (the choice's minimum is optimistic).
 - ``rotated-lighting spread`` (one scene, :func:`spread_estimates`): every candidate predicts a
   subsample of the sphere under :data:`OTHER_ROTATIONS` of the fit's own lighting (turned about the
   vertical and the horizontal axis); the squared relative RMS distance of two candidates' predictions,
@@ -41,7 +44,7 @@ from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.scene import Environment
 from brdfrig.fit.stream import FitData
 
-__all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "LOSO_MAX_FOLDS", "other_lightings", "estimate_pixels",
+__all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "LOSO_MAX_FOLDS", "FOLD_SPLITS", "other_lightings", "loso_folds", "estimate_pixels",
            "predict_under", "spread_estimates", "loso_estimates"]
 
 OTHER_ROTATIONS = (("y", 90.0), ("y", 180.0), ("y", 270.0), ("x", 90.0), ("x", -90.0))
@@ -196,17 +199,31 @@ def _fold_split(data: FitData, out: np.ndarray) -> tuple[FitData, np.ndarray]:
     return data.with_split(train, held), test
 
 
-def loso_estimates(data: FitData, names: list[str], fit_fold: Callable[[FitData, list[str]], dict]) -> dict[str, RelightEstimate]:
-    """Leave-one-scene-out relighting error of each candidate in ``names`` (module docstring).
+FOLD_SPLITS = {"interleaved": "scene k in fold k mod {F}", "arcs": "{F} runs of consecutive scenes"}
+"""The leave-one-scene-out splits (module docstring) and how the estimate's detail names them."""
+
+
+def loso_folds(n_scenes: int, split: str) -> list[np.ndarray]:
+    """Scene indices of each of the ``min(n_scenes, LOSO_MAX_FOLDS)`` folds of a :data:`FOLD_SPLITS` split."""
+    folds = min(n_scenes, LOSO_MAX_FOLDS)
+    if split == "interleaved":
+        return [np.arange(f, n_scenes, folds) for f in range(folds)]
+    if split == "arcs":
+        return [np.arange(f * n_scenes // folds, (f + 1) * n_scenes // folds) for f in range(folds)]
+    raise ValueError(f"unknown leave-one-scene-out split {split!r} (known: {', '.join(FOLD_SPLITS)})")
+
+
+def loso_estimates(data: FitData, names: list[str], fit_fold: Callable[[FitData, list[str]], dict],
+                   split: str) -> dict[str, RelightEstimate]:
+    """Leave-one-scene-out relighting error of each candidate in ``names`` on the folds of ``split`` (module docstring).
 
     ``fit_fold(data, names) -> {name: brdf}`` fits the candidates on ``data.train`` (those it can fit).
     A candidate whose refit fails or predicts non-finite radiance gets no estimate (value None).
     """
     n_scenes = len(data.scenes)
-    folds = min(n_scenes, LOSO_MAX_FOLDS)
+    folds = loso_folds(n_scenes, split)
     num, den, missing = dict.fromkeys(names, 0.0), 0.0, set()
-    for f in range(folds):
-        out = np.arange(f, n_scenes, folds)
+    for out in folds:
         fold, test = _fold_split(data, out)
         brdfs = fit_fold(fold, names)
         target, w = data.pool.radiance[test], data.pool.weights[test][:, None]
@@ -221,5 +238,6 @@ def loso_estimates(data: FitData, names: list[str], fit_fold: Callable[[FitData,
                 missing.add(m)
                 continue
             num[m] += float(np.sum(w * (pred - target) ** 2))
-    detail = f"{folds} folds of {n_scenes} scenes (scene k in fold k mod {folds}), refitted without each fold"
+    how = FOLD_SPLITS[split].format(F=len(folds))
+    detail = f"{len(folds)} folds of {n_scenes} scenes ({how}), refitted without each fold"
     return {m: RelightEstimate(None if m in missing or den <= 0 else math.sqrt(num[m] / den), LOSO, detail) for m in names}
