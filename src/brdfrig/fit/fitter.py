@@ -299,7 +299,7 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     relight = cands[chosen].relight or RelightEstimate(None, "none", "not estimated (estimate=False)")
     if estimate and model == "auto" and len(scenes) > LOSO_MAX_FOLDS:  # the two splits differ
         with data.clock("other"):
-            relight = loso_estimates(data, [chosen], lambda fold, ms: _refit(fold, ms, settings, True), "arcs")[chosen]
+            relight = _loso(data, [chosen], settings, True, "arcs")[chosen]
     report = FitReport(
         chosen_model=chosen, reason=reason, requested_model=model, solver=solver, lmax=lmax, pmax=pmax,
         n_scenes=len(scenes), pixels=counts, limb_margin_max_theta_deg=max_theta_deg, heldout_pixels=int(len(data.held)),
@@ -329,11 +329,16 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
             names = [m for m in fitter.brdfs if model == m or (cands[m].determined and cands[m].radiance_check is None)]
             names = sorted(names, key=lambda m: (m != model, cands[m].heldout_relative_rms or 0.0))[:LOSO_MAX_CANDIDATES]
             split = "interleaved" if model == "auto" else "arcs"  # auto chooses on one split, reports on the other
-            estimates = loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, model == "auto"), split)
+            estimates = _loso(data, names, settings, model == "auto", split)
         else:
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
     for m, est in estimates.items():
         cands[m].relight = est
+
+
+def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: str) -> dict[str, RelightEstimate]:
+    """Leave-one-scene-out estimates of ``names`` on the folds of ``split``, each fold refitted by :func:`_refit`."""
+    return loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, auto), split)
 
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:
