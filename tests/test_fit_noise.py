@@ -11,8 +11,10 @@ import pytest
 
 from brdfrig.fit.noise import relative_noise, scenes_noise
 from brdfrig.fit.report import Candidate
-from brdfrig.fit.select import TABLE, YARDSTICK, choose, excess_error, family_holds
+from brdfrig.fit.select import TABLES, YARDSTICK, choose, excess_error, family_holds
 from brdfrig.hdr.sphere import sphere_pixels
+
+BLEND, TABLE = TABLES
 
 
 def _sphere(size: int = 96, highlight: bool = False):
@@ -94,6 +96,8 @@ def test_excess_error_removes_the_noise_in_quadrature():
         ({"dielectric": 0.02, YARDSTICK: 0.025, TABLE: 0.024}, 0.0, TABLE),
         # ... but not the yardstick: its closer reproduction of a family's own image does not unseat the family
         ({"dielectric": 0.00061, YARDSTICK: 0.0015, TABLE: 0.00099}, 0.0, "dielectric"),
+        # the blend of the tables built too: it comes first
+        ({"dielectric": 0.02, YARDSTICK: 0.025, TABLE: 0.024, BLEND: 0.026}, 0.0, BLEND),
     ],
 )
 def test_family_holds(held, noise, expect):

@@ -35,7 +35,7 @@ MATERIAL_GROUPS = {
 """Groups of materials that are not GGX-like (issue 10), as regular expressions searched in the material's name:
 felts, satins, paints (iridescent flake, colour-changing, metallic and ILM paints of the RGL set) and papers
 (RGL and Nielsen papers, cardboards, binder and book covers)."""
-TABLES = ("bivariate", "bivariate+prior", "bivariate+measured")
+TABLES = ("bivariate", "bivariate+prior", "bivariate+measured", "bivariate+blend")
 """The data-driven table models weighed against ``microfacet`` per material group."""
 
 

@@ -73,6 +73,7 @@ _PROVIDERS: dict[str, str] = {
     "tabulated": "brdfrig.fit.measured",
     "neural": "brdfrig.fit.measured",
     "bivariate": "brdfrig.fit.bivariate",
+    "blend": "brdfrig.fit.blend",
 }
 
 

@@ -14,12 +14,14 @@ Pipeline (``docs/MATH.md``):
    per model (:func:`brdfrig.fit.stream.stream_model`) across solvers and priors; single-model fits
    (``microfacet``, ...) get the training pixels of each scene.
 5. Relighting estimate of every candidate under other lighting (:mod:`brdfrig.fit.relight`):
-   leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.  ``auto`` compares
+   leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.  From one image the
+   tables' estimates then weight their blend (:mod:`brdfrig.fit.blend`).  ``auto`` compares
    its candidates on interleaved folds and, with more scenes than folds, reports the chosen fit's
    estimate from folds of consecutive scenes (``"arcs"``); a requested model's estimate is the arcs'.
 6. Judgement and choice (:mod:`brdfrig.fit.select`): determinacy, finite non-negative predicted
-   radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against the
-   data-driven table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), with several
+   radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against a
+   flexible table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), else takes the
+   tables' blend; with several
    scenes it picks by the relighting estimate.  The report is a
    :class:`brdfrig.fit.report.FitReport`.
 """
@@ -34,6 +36,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from brdfrig.errors import InputError
+from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights
 from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
@@ -74,6 +77,8 @@ no estimate and are not chosen)."""
 REFERENCES = tuple(m for m in RICHNESS if REGISTRY[m].kind == "single" or m in ("diffuse", "lobe"))
 """Candidates a one-scene fit of a requested model is compared with for its relighting estimate
 (the models one image determines)."""
+BLEND = "bivariate+blend"
+"""The model built from the other candidates' estimates (:mod:`brdfrig.fit.blend`)."""
 
 
 @dataclass
@@ -99,6 +104,7 @@ class _Candidates:
         self.streams: dict[ModelSpec, Stream] = {}
         self.brdfs: dict[str, FittedBRDF] = {}
         self.entries: dict[str, Candidate] = {}
+        self.held_preds: dict[str, np.ndarray] = {}
 
     def fit(self, name: str, full_lmax: int, auto: bool) -> Candidate:
         """Fit ``name`` (``full`` and ``full+prior`` at band limit ``full_lmax``, skipped where it is < 0, or < 1 for ``auto``)."""
@@ -167,14 +173,50 @@ class _Candidates:
             extra["references"] = self.reference_tables if self.reference_tables is not None else shipped()
         brdf, rep = single_fit(name)(data.train_scenes(), lmax=self.lmax, bands=self.bands, progress=data.progress, **extra)
         self.brdfs[name] = brdf
-        held_err = check = None
-        if len(data.held):
-            pred = data.predict_held(brdf)
-            check = radiance_problem(pred, "held-out pixels")
-            if np.all(np.isfinite(pred)):
-                held_err = relative_rms(pred, data.pool.radiance[data.held], data.pool.weights[data.held])
+        held_err, check = self._held_out(name, brdf)
         return Candidate(name, heldout_relative_rms=held_err, full_rank=bool(rep["determined"]), fit_report=rep,
                          radiance_check=check, seconds=time.perf_counter() - t0, prior=prior)
+
+    def _held_out(self, name: str, brdf: FittedBRDF, pred: np.ndarray | None = None) -> tuple[float | None, str | None]:
+        """(held-out error, radiance problem) of a fit; its held-out prediction (``pred``, else predicted) is kept."""
+        data = self.data
+        if not len(data.held):
+            return None, None
+        pred = data.predict_held(brdf) if pred is None else pred
+        self.held_preds[name] = pred
+        held_err = None
+        if np.all(np.isfinite(pred)):
+            held_err = relative_rms(pred, data.pool.radiance[data.held], data.pool.weights[data.held])
+        return held_err, radiance_problem(pred, "held-out pixels")
+
+    def blend(self, one_image: bool) -> Candidate:
+        """:data:`BLEND` from the tables already fitted and estimated (:mod:`brdfrig.fit.blend`): their
+        inverse-variance average, or skipped (several scenes, fewer than two tables with an estimate)."""
+        t0 = time.perf_counter()
+        parts = [m for m in PARTS if m in self.brdfs and self.entries[m].radiance_check is None
+                 and self.entries[m].relight is not None and self.entries[m].relight.value is not None
+                 and math.isfinite(self.entries[m].relight.value) and self.entries[m].relight.value > 0]
+        if not one_image:
+            cand = Candidate(BLEND, skipped="one image only (with several scenes auto compares the tables by "
+                                            "leave-one-scene-out relighting)")
+        elif len(parts) < 2:
+            cand = Candidate(BLEND, skipped=f"fewer than two table fits with a relighting estimate ({parts})")
+        else:
+            errors = [self.entries[m].relight.value for m in parts]
+            weights = inverse_variance_weights(errors)
+            brdf = self.brdfs[BLEND] = BlendBRDF([self.brdfs[m] for m in parts], weights)
+            pred = brdf.combine([self.held_preds[m] for m in parts]) if all(m in self.held_preds for m in parts) else None
+            held_err, check = self._held_out(BLEND, brdf, pred)
+            shares = ", ".join(f"{m} {w:.3f}" for m, w in zip(parts, weights))
+            relight = RelightEstimate(blend_estimate(errors), self.entries[parts[0]].relight.method,
+                                      f"the smallest of the parts' estimates (weights: {shares})")
+            cand = Candidate(BLEND, heldout_relative_rms=held_err, full_rank=True, radiance_check=check, relight=relight,
+                             fit_report={"parts": dict(zip(parts, weights.tolist())), "estimates": dict(zip(parts, errors))},
+                             seconds=sum(self.entries[m].seconds for m in parts) + time.perf_counter() - t0)
+        if cand.skipped and self.required == BLEND:
+            raise InputError(f"{BLEND}: {cand.skipped}")
+        self.entries[BLEND] = cand
+        return cand
 
 
 def fit_brdf(
@@ -237,8 +279,8 @@ def fit_brdf(
     # The blocks are small (a few thousand x a few hundred): multithreaded BLAS only
     # adds contention (measured 15-30x slower QR on a loaded 2-core machine).
     with threadpool_limits(limits=1, user_api="blas"):
-        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, bool(estimate) or model == "auto",
-                         reference_tables)
+        return _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed,
+                         bool(estimate) or model in ("auto", BLEND), reference_tables)
 
 
 def _wanted(model: str, n_scenes: int, estimate: bool) -> tuple[str, ...]:
@@ -257,6 +299,9 @@ def _analyse(data: FitData, scenes_in: list[int], lmax: int, pmax: int, wanted, 
 
 
 def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, estimate, reference_tables) -> FitResult:
+    if model == BLEND and len(scenes) > 1:
+        raise InputError(f"{BLEND} blends the tables of a one-image fit; with {len(scenes)} scenes ask for one of "
+                         "the tables or auto")
     t0 = time.perf_counter()
     clock = StageClock()
     with clock("gather"):
@@ -279,15 +324,16 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
     fitter = _Candidates(data, ident, lmax, pmax, solver, None if model == "auto" else model, reference_tables)
     for name in wanted:
-        fitter.fit(name, full_lmax, model == "auto")
+        if name != BLEND:
+            fitter.fit(name, full_lmax, model == "auto")
     cands = fitter.entries
-    for name, cand in cands.items():
-        judge(cand, ident)
-        if name in fitter.brdfs:
-            cand.plausibility = plausibility(fitter.brdfs[name])
+    _judge(fitter, ident, list(cands))
     settings = (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables)
     if estimate:
         _estimate(data, fitter, model, settings)
+    if BLEND in wanted:  # built from the other candidates' estimates
+        fitter.blend(len(scenes) == 1)
+        _judge(fitter, ident, [BLEND])
 
     if model == "auto":
         chosen, reason, selection = choose(cands, noise, one_image=len(scenes) == 1)
@@ -312,6 +358,14 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     )
     report.seconds, report.stage_seconds = time.perf_counter() - t0, clock.report()
     return FitResult(brdf=fitter.brdfs[chosen], report=report, brdfs=dict(fitter.brdfs))
+
+
+def _judge(fitter: _Candidates, ident: Identifiability, names: list[str]) -> None:
+    """Determinacy and plausibility of the candidates ``names``."""
+    for name in names:
+        judge(fitter.entries[name], ident)
+        if name in fitter.brdfs:
+            fitter.entries[name].plausibility = plausibility(fitter.brdfs[name])
 
 
 def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -> None:

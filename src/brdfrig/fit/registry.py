@@ -13,7 +13,9 @@ Kinds of model:
             with ``prior_parametric`` also takes ``prior=brdf``: the fitter passes the parametric
             candidate with the smallest held-out error (``bivariate+prior``); one with ``prior_references``
             takes ``references=`` measured materials' tables (``bivariate+measured``:
-            :mod:`brdfrig.fit.references`).
+            :mod:`brdfrig.fit.references`);
+``blend``   one image only: the fitted tables averaged with weights from their relighting estimates
+            (``bivariate+blend``: :mod:`brdfrig.fit.blend`), built after the estimates.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ REGISTRY: dict[str, ModelInfo] = {m.name: m for m in (
     ModelInfo("bivariate", "single", "brdfrig.fit.bivariate:fit_bivariate"),
     ModelInfo("bivariate+prior", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_parametric=True),
     ModelInfo("bivariate+measured", "single", "brdfrig.fit.bivariate:fit_bivariate", prior_references=True),
+    ModelInfo("bivariate+blend", "blend"),
     ModelInfo("full", "linear"),
     ModelInfo("full+prior", "prior"),
 )}

@@ -39,6 +39,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from brdfrig.fit.bivariate import BivariateBRDF, predict_tables
+from brdfrig.fit.blend import BlendBRDF
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.scene import Environment
@@ -66,7 +67,7 @@ itself: 54% and 5 of 8); log-log correlation 0.65, so the estimate ranks materia
 applied to the parametric families: fitted to their own BRDFs they relight as well as they spread, and a
 line through the measured materials would overstate that (the conductor's, 0.55 s^0.48, states 5.4% for a
 spread of 0.8%).  ``bivariate+measured``: the same fit through the 51 rgl materials of the whole benchmark
-(noise-free; ``auto``, whose estimate this is on 57 of the 59): within 2x on 45 of the 51 rgl fits (in sample)
+(noise-free): within 2x on 45 of the 51 rgl fits (in sample)
 and 6 of the 8 nielsen ones, and on 17 of 20 materials fitted with 1% noise (the line through 21 rgl
 materials of a partial run before, ``0.18 s^0.68``: 43 of 51, 6 of 8, 14 of 20)."""
 SPREAD = "rotated-lighting spread"
@@ -95,17 +96,25 @@ def estimate_pixels(data: FitData, count: int = ESTIMATE_PIXELS) -> tuple[np.nda
 def predict_under(brdfs: dict, envs: list[Environment], normals: np.ndarray) -> dict[str, np.ndarray]:
     """name -> (len(envs), N, C) radiance of each BRDF in ``brdfs`` at ``normals`` under each lighting.
 
-    The tabulated ones (:class:`~brdfrig.fit.bivariate.BivariateBRDF`) share one design per lighting
+    The tabulated ones (:class:`~brdfrig.fit.bivariate.BivariateBRDF`, and the parts of each
+    :class:`~brdfrig.fit.blend.BlendBRDF`) share one pass over the quadrature per lighting
     (:func:`~brdfrig.fit.bivariate.predict_tables`); the others use their own ``predict``.
     """
-    tables = [m for m, b in brdfs.items() if isinstance(b, BivariateBRDF)]
+    tables = {id(b): b for b in brdfs.values() if isinstance(b, BivariateBRDF)}
+    for b in brdfs.values():
+        if isinstance(b, BlendBRDF):
+            tables.update({id(p): p for p in b.parts})
     preds: dict[str, list[np.ndarray]] = {m: [] for m in brdfs}
     for env in envs:
-        for m, pred in zip(tables, predict_tables([brdfs[m] for m in tables], env, normals)):
-            preds[m].append(pred)
+        shared = dict(zip(tables, predict_tables(list(tables.values()), env, normals)))
         for m, brdf in brdfs.items():
-            if m not in tables:
-                preds[m].append(np.asarray(brdf.predict(env, normals), dtype=np.float64))
+            if isinstance(brdf, BivariateBRDF):
+                pred = shared[id(brdf)]
+            elif isinstance(brdf, BlendBRDF):
+                pred = brdf.combine([shared[id(p)] for p in brdf.parts])
+            else:
+                pred = np.asarray(brdf.predict(env, normals), dtype=np.float64)
+            preds[m].append(pred)
     return {m: np.stack(p) for m, p in preds.items()}
 
 

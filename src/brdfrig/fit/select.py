@@ -9,7 +9,7 @@
   :func:`brdfrig.fit.models.plausibility`).  From one image it asks whether a parametric family holds
   (:func:`family_holds`): the family with the smallest held-out error is kept when that error, above
   the image's pixel noise, is at most :data:`FAMILY_HOLDS` times the flexible table's
-  (:data:`YARDSTICK`) plus :data:`NOISE_TOL` times the noise; otherwise the measured-prior table (:data:`TABLE`).  With several scenes (or without those candidates) it
+  (:data:`YARDSTICK`) plus :data:`NOISE_TOL` times the noise; otherwise the first of :data:`TABLES` admitted.  With several scenes (or without those candidates) it
   picks the one with the smallest estimated relighting error (:mod:`brdfrig.fit.relight`); of those
   within :data:`SELECT_RTOL` of it, the one with the smallest held-out error.  Without any estimate it
   picks the richest (order :data:`brdfrig.fit.registry.RICHNESS`) whose held-out error (same lighting)
@@ -26,7 +26,7 @@ from brdfrig.fit.identifiability import Identifiability
 from brdfrig.fit.registry import PARAMETRIC, REGISTRY, RICHNESS
 from brdfrig.fit.report import Candidate, PixelCounts
 
-__all__ = ["SELECT_RTOL", "FAMILY_HOLDS", "NOISE_TOL", "YARDSTICK", "TABLE", "COND_WARN", "NEGATIVE_RTOL", "judge", "radiance_problem",
+__all__ = ["SELECT_RTOL", "FAMILY_HOLDS", "NOISE_TOL", "YARDSTICK", "TABLES", "COND_WARN", "NEGATIVE_RTOL", "judge", "radiance_problem",
            "excess_error", "family_holds", "choose", "fit_warnings"]
 
 SELECT_RTOL = 0.02
@@ -40,11 +40,12 @@ tie, and the family is kept."""
 YARDSTICK = "bivariate+prior"
 """The flexible fit a parametric family's held-out error is weighed against from one image (docs/DESIGN.md,
 History: the one-image choice of ``auto``)."""
-TABLE = "bivariate+measured"
-"""The data-driven candidate ``auto`` takes from one image when no family holds (:data:`YARDSTICK` where it
-was not fitted).  Not itself the yardstick: it reproduces an image of a family's own BRDF so closely (a
-dielectric: 0.099% held out against the family's 0.061%) that the family would not hold (docs/DESIGN.md,
-History: reference tables)."""
+TABLES = ("bivariate+blend", "bivariate+measured")
+"""The data-driven candidates ``auto`` takes from one image when no family holds, in order of preference
+(:data:`YARDSTICK` where neither is admitted): the tables' inverse-variance blend (docs/DESIGN.md, History:
+blending the one-image tables), else the measured-prior table.  Neither is the yardstick: the measured-prior
+table reproduces an image of a family's own BRDF so closely (a dielectric: 0.099% held out against the
+family's 0.061%) that the family would not hold (docs/DESIGN.md, History: reference tables)."""
 COND_WARN = 1e6
 """Condition number (column-equilibrated) above which the report warns that weakly determined
 directions may relight badly under other lighting.  For the ``tikhonov`` solver (and ``full+prior``)
@@ -109,7 +110,8 @@ def excess_error(heldout: float, noise: float | None) -> float:
 
 
 def family_holds(cands: dict[str, Candidate], names: list[str], noise: float | None) -> tuple[str, str] | None:
-    """One image: the best parametric family if it holds against :data:`YARDSTICK`, else :data:`TABLE`, with the reason.
+    """One image: the best parametric family if it holds against :data:`YARDSTICK`, else the first of :data:`TABLES`
+    in ``names``, with the reason.
 
     The noise is capped at the smaller of the two held-out errors (held-out pixels are not fitted, so no
     fit's error is below the noise; a larger ``noise`` is shading the estimate took for noise, as on
@@ -126,7 +128,7 @@ def family_holds(cands: dict[str, Candidate], names: list[str], noise: float | N
     above = f"held-out error above the pixel noise ({noise:.3g})"
     if e_family <= FAMILY_HOLDS * e_table + NOISE_TOL * noise:
         return family, f"the family holds: {above} {e_family:.4g} vs {YARDSTICK}'s {e_table:.4g}"
-    return (TABLE if TABLE in names else YARDSTICK,
+    return (next((m for m in TABLES if m in names), YARDSTICK),
             f"no family holds: {above} {e_table:.4g} for {YARDSTICK}, {e_family:.4g} for the best family ({family})")
 
 
