@@ -1,8 +1,9 @@
-"""The ``bivariate+blend`` model: the one-image tables averaged with inverse-variance weights.
+"""The ``bivariate+blend`` model: the tables averaged with inverse-variance weights (one image) or stacked
+on leave-one-scene-out predictions (several scenes).
 
 Oracles: closed forms (inverse-variance weights; a blend of constant tables is the Lambertian of the
-weighted albedo, rendered analytically), each part's own prediction, and the ground-truth renderer of
-tabulated BRDFs.
+weighted albedo, rendered analytically; stacking weights of an exact convex combination), a brute-force
+search over the simplex, each part's own prediction, and the ground-truth renderer of tabulated BRDFs.
 """
 
 from __future__ import annotations
@@ -13,9 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from brdfrig.errors import InputError
 from brdfrig.fit.bivariate import BivariateBRDF
-from brdfrig.fit.blend import BlendBRDF, inverse_variance_weights
+from brdfrig.fit.blend import BlendBRDF, inverse_variance_weights, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.scene import Scene
@@ -28,6 +28,29 @@ def test_inverse_variance_weights():
     for bad in ([], [0.1, 0.0], [0.1, -0.2], [0.1, math.nan], [0.1, math.inf]):
         with pytest.raises(ValueError, match="finite positive"):
             inverse_variance_weights(bad)
+
+
+def _stack_cost(a, preds, target, w) -> float:
+    return float(np.sum(w[:, None] * (sum(x * p for x, p in zip(a, preds)) - target) ** 2))
+
+
+def test_stacked_weights():
+    """An exact convex combination is recovered (1e-9); a target outside the parts' hull gets the nearest
+    vertex; random predictions: no point of a 0.01 grid over the simplex does better (brute force)."""
+    rng = np.random.default_rng(7)
+    preds = [rng.random((50, 3)) for _ in range(3)]
+    w = rng.random(50)
+    assert stacked_weights(preds, 0.2 * preds[0] + 0.5 * preds[1] + 0.3 * preds[2], w) == pytest.approx([0.2, 0.5, 0.3], abs=1e-9)
+    assert stacked_weights(preds, preds[1] + 0.5 * (preds[1] - preds[0]), w) == pytest.approx([0.0, 1.0, 0.0], abs=1e-9)
+    target = rng.random((50, 3))
+    a = stacked_weights(preds, target, w)
+    assert np.all(a >= 0) and a.sum() == pytest.approx(1.0, abs=1e-12)
+    grid = [(i / 100, j / 100, 1 - (i + j) / 100) for i in range(101) for j in range(101 - i)]
+    assert _stack_cost(a, preds, target, w) <= min(_stack_cost(g, preds, target, w) for g in grid) + 1e-12
+    with pytest.raises(ValueError, match="two or more finite"):
+        stacked_weights([preds[0]], target, w)
+    with pytest.raises(ValueError, match="two or more finite"):
+        stacked_weights([preds[0], np.full((50, 3), math.nan)], target, w)
 
 
 def _lambertian_table(albedo, nh: int, nd: int) -> BivariateBRDF:
@@ -102,7 +125,29 @@ def test_fitter_blends_the_tables_by_their_estimates(envs):
     blended = sum(w * p for w, p in zip(result.brdf.weights, relit))
     assert relative_rms(result.brdf.predict(test_env, normals), blended) < 1e-12
     assert relative_rms(blended, reference) < 0.01  # measured 0.63% (the parts: 0.47, 0.35, 2.35%)
+
+
+def test_several_scenes_stack_the_tables_on_leave_one_scene_out_predictions(envs):
+    """Two scenes (the probe and the probe turned 90 degrees) of the BRDF above: ``bivariate+blend`` stacks the
+    tables on their leave-one-scene-out predictions, so its estimate on those folds is at most each part's
+    (the simplex holds every part), and it relights under the other probe within 1% of the truth."""
+    from brdfrig.fit.fitter import fit_brdf
+    from brdfrig.fit.groundtruth import render_tabulated
+
+    fit_env, test_env = envs
+    normals = _sphere_normals(32)
+    truth = _tabulated(lambda th, td: _bivariate_truth(th, td, [0.5, 0.3, 0.2], [0.15, 0.2, 0.25], 0.04))
     turned_env = fit_env.rotated(np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]))
-    turned = Scene(turned_env, normals, render_tabulated(truth, normals, turned_env), np.ones(len(normals)))
-    with pytest.raises(InputError, match="bivariate\\+blend blends the tables of a one-image fit; with 2 scenes"):
-        fit_brdf([scene, turned], model="bivariate+blend", progress=False)
+    scenes = [Scene(e, normals, render_tabulated(truth, normals, e), np.ones(len(normals))) for e in (fit_env, turned_env)]
+    result = fit_brdf(scenes, model="bivariate+blend", progress=False)
+    report = result.report
+    assert report.chosen_model == "bivariate+blend" and isinstance(result.brdf, BlendBRDF)
+    cand = report.candidates["bivariate+blend"]
+    parts = list(cand.fit_report["parts"])
+    assert parts == ["bivariate", "bivariate+prior", "bivariate+measured"]
+    assert np.all(result.brdf.weights >= 0) and result.brdf.weights.sum() == pytest.approx(1.0, abs=1e-12)
+    assert "leave-one-scene-out" == cand.relight.method and "weights stacked" in cand.relight.detail
+    assert cand.relight.value <= min(report.candidates[m].relight.value for m in parts) + 1e-12
+    relit = relative_rms(result.brdf.predict(test_env, normals), render_tabulated(truth, normals, test_env))
+    print(f"weights {result.brdf.weights}, estimate {cand.relight.value:.4f}, relit {relit:.4f}")
+    assert relit < 0.01

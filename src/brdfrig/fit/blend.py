@@ -1,17 +1,23 @@
-"""The ``bivariate+blend`` model: the one-image table fits averaged, each weighted by its estimated error.
+"""The ``bivariate+blend`` model: the table fits averaged, with weights from how well each relights.
 
-From one image the three tables (``bivariate``, ``bivariate+prior``, ``bivariate+measured``) fill what the
-lighting leaves unobserved from different priors (smoothness, the best parametric family, measured
-materials), and the rotated-lighting spread (:mod:`brdfrig.fit.relight`) estimates each one's relighting
-error ``e_k`` assuming their errors are independent.  Under that same assumption the combination with the
-smallest expected error is the inverse-variance average::
+The three tables (``bivariate``, ``bivariate+prior``, ``bivariate+measured``) fill what the lighting leaves
+unobserved from different priors (smoothness, the best parametric family, measured materials) on different
+grids, and where they disagree their average relights better than any one of them.  The weights:
 
-    rho = sum_k w_k rho_k,   w_k = e_k^-2 / sum_j e_j^-2
+- one image: the rotated-lighting spread (:mod:`brdfrig.fit.relight`) estimates each table's relighting
+  error ``e_k`` assuming their errors are independent; under that same assumption the combination with the
+  smallest expected error is the inverse-variance average (:func:`inverse_variance_weights`)::
+
+      rho = sum_k w_k rho_k,   w_k = e_k^-2 / sum_j e_j^-2
+
+- several scenes: stacking (:func:`stacked_weights`): the convex weights whose combination of the tables'
+  leave-one-scene-out predictions is closest to the left-out pixels.
 
 A sum of tables is not a table on one grid (``bivariate+measured`` fits on the reference set's grid, the
 others on the default one; resampling one grid onto the other moved relit spheres by 0.6-9%), so
 :class:`BlendBRDF` keeps the parts and their weights.  Its rendered radiance is the same sum of the parts'
-(linear in ``rho``).  Measured in docs/DESIGN.md (History: blending the one-image tables).
+(linear in ``rho``).  Measured in docs/DESIGN.md (History: blending the one-image tables; stacking the tables
+of several scenes).
 """
 
 from __future__ import annotations
@@ -22,12 +28,14 @@ import numpy as np
 
 from brdfrig.fit.bivariate import BivariateBRDF, predict_tables
 from brdfrig.fit.brdf import register_model
+from brdfrig.fit.lsq import polytope_lsq
 from brdfrig.fit.scene import Environment
 
-__all__ = ["BlendBRDF", "PARTS", "inverse_variance_weights", "blend_estimate"]
+__all__ = ["BlendBRDF", "PARTS", "inverse_variance_weights", "stacked_weights", "blend_estimate"]
 
 PARTS = ("bivariate", "bivariate+prior", "bivariate+measured")
-"""The candidates a blend averages (those fitted, with a finite positive estimate)."""
+"""The candidates a blend averages: those fitted with finite non-negative radiance and a finite positive estimate
+(one image) or leave-one-scene-out predictions (several scenes)."""
 
 
 def inverse_variance_weights(errors) -> np.ndarray:
@@ -37,6 +45,34 @@ def inverse_variance_weights(errors) -> np.ndarray:
         raise ValueError(f"blend weights need finite positive error estimates, got {e.tolist()}")
     w = e**-2.0
     return w / w.sum()
+
+
+def stacked_weights(preds, target, weights) -> np.ndarray:
+    """Convex weights ``a`` (``a_k >= 0``, ``sum_k a_k = 1``) minimising ``sum_n w_n |sum_k a_k p_kn - t_n|^2``.
+
+    Stacking (Breiman 1996, "Stacked regressions") on predictions ``p_k`` of pixels the parts were not
+    fitted to.  Solved exactly with ``a_K = 1 - sum_{k<K} a_k`` by :func:`brdfrig.fit.lsq.polytope_lsq`.
+
+    Parameters
+    ----------
+    preds : sequence of (N, C) arrays
+        Each part's prediction of the same pixels (finite).
+    target : (N, C) array
+        Their radiance.
+    weights : (N,) array
+        Pixel weights (>= 0).
+    """
+    ps = [np.asarray(p, dtype=np.float64) for p in preds]
+    sw = np.sqrt(np.asarray(weights, dtype=np.float64))[:, None]
+    t = np.asarray(target, dtype=np.float64)
+    if len(ps) < 2 or any(p.shape != t.shape for p in ps) or not all(np.all(np.isfinite(p)) for p in ps):
+        raise ValueError(f"stacking needs two or more finite predictions shaped like the target {t.shape}")
+    k = len(ps) - 1
+    cols = np.stack([((p - ps[-1]) * sw).ravel() for p in ps[:-1]], axis=1)
+    g = np.vstack([-np.eye(k), np.ones((1, k))])
+    a = polytope_lsq(cols, ((t - ps[-1]) * sw).ravel(), g, np.r_[np.zeros(k), 1.0])[1]
+    a = np.clip(np.r_[a, 1.0 - a.sum()], 0.0, None)
+    return a / a.sum()
 
 
 @register_model("blend")

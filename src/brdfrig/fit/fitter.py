@@ -14,10 +14,11 @@ Pipeline (``docs/MATH.md``):
    per model (:func:`brdfrig.fit.stream.stream_model`) across solvers and priors; single-model fits
    (``microfacet``, ...) get the training pixels of each scene.
 5. Relighting estimate of every candidate under other lighting (:mod:`brdfrig.fit.relight`):
-   leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.  From one image the
-   tables' estimates then weight their blend (:mod:`brdfrig.fit.blend`).  ``auto`` compares
-   its candidates on interleaved folds and, with more scenes than folds, reports the chosen fit's
-   estimate from folds of consecutive scenes (``"arcs"``); a requested model's estimate is the arcs'.
+   leave-one-scene-out with two or more scenes, the rotated-lighting spread with one.  The tables' blend
+   (:mod:`brdfrig.fit.blend`) is then weighted by their one-image estimates, or stacked on their
+   leave-one-scene-out predictions.  ``auto`` (and the blend) compare candidates (weigh the tables) on
+   interleaved folds and, with more scenes than folds, report the chosen fit's estimate from folds of
+   consecutive scenes (``"arcs"``); another requested model's estimate is the arcs'.
 6. Judgement and choice (:mod:`brdfrig.fit.select`): determinacy, finite non-negative predicted
    radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against a
    flexible table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), else takes the
@@ -36,7 +37,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from brdfrig.errors import InputError
-from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights
+from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
@@ -44,7 +45,8 @@ from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
 from brdfrig.fit.noise import scenes_noise
 from brdfrig.fit.references import shipped
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
-from brdfrig.fit.relight import LOSO_MAX_FOLDS, estimate_pixels, loso_estimates, other_lightings, predict_under, spread_estimates
+from brdfrig.fit.relight import (LOSO_MAX_FOLDS, LosoPredictions, estimate_pixels, loso_predictions, other_lightings,
+                                 predict_under, spread_estimates)
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
 from brdfrig.fit.select import choose, fit_warnings, judge, radiance_problem
@@ -73,7 +75,7 @@ along barely excited directions, relights at 2e5 relative error.  Measured (GGX 
 LOSO_MAX_CANDIDATES = 4
 """With several scenes, the leave-one-scene-out estimate refits (per fold) the requested model or, for
 ``auto``, the admissible candidates with the smallest held-out errors, at most this many (the others get
-no estimate and are not chosen)."""
+no estimate and are not chosen), and the blend's parts (:data:`brdfrig.fit.blend.PARTS`) where a blend is wanted."""
 REFERENCES = tuple(m for m in RICHNESS if REGISTRY[m].kind == "single" or m in ("diffuse", "lobe"))
 """Candidates a one-scene fit of a requested model is compared with for its relighting estimate
 (the models one image determines)."""
@@ -105,6 +107,7 @@ class _Candidates:
         self.brdfs: dict[str, FittedBRDF] = {}
         self.entries: dict[str, Candidate] = {}
         self.held_preds: dict[str, np.ndarray] = {}
+        self.loso: LosoPredictions | None = None
 
     def fit(self, name: str, full_lmax: int, auto: bool) -> Candidate:
         """Fit ``name`` (``full`` and ``full+prior`` at band limit ``full_lmax``, skipped where it is < 0, or < 1 for ``auto``)."""
@@ -189,27 +192,34 @@ class _Candidates:
             held_err = relative_rms(pred, data.pool.radiance[data.held], data.pool.weights[data.held])
         return held_err, radiance_problem(pred, "held-out pixels")
 
-    def blend(self, one_image: bool) -> Candidate:
-        """:data:`BLEND` from the tables already fitted and estimated (:mod:`brdfrig.fit.blend`): their
-        inverse-variance average, or skipped (several scenes, fewer than two tables with an estimate)."""
+    def blend(self) -> Candidate:
+        """:data:`BLEND` from the tables already fitted and estimated (:mod:`brdfrig.fit.blend`): from one image
+        their inverse-variance average, with several scenes their stacking on the leave-one-scene-out
+        predictions (``self.loso``); skipped with fewer than two such tables."""
         t0 = time.perf_counter()
-        parts = [m for m in PARTS if m in self.brdfs and self.entries[m].radiance_check is None
-                 and self.entries[m].relight is not None and self.entries[m].relight.value is not None
-                 and math.isfinite(self.entries[m].relight.value) and self.entries[m].relight.value > 0]
-        if not one_image:
-            cand = Candidate(BLEND, skipped="one image only (with several scenes auto compares the tables by "
-                                            "leave-one-scene-out relighting)")
-        elif len(parts) < 2:
+        ok = [m for m in PARTS if m in self.brdfs and self.entries[m].radiance_check is None]
+        if self.loso is not None:
+            parts = [m for m in ok if m in self.loso.preds]
+        else:
+            parts = [m for m in ok if self.entries[m].relight is not None and self.entries[m].relight.value is not None
+                     and math.isfinite(self.entries[m].relight.value) and self.entries[m].relight.value > 0]
+        if len(parts) < 2:
             cand = Candidate(BLEND, skipped=f"fewer than two table fits with a relighting estimate ({parts})")
         else:
             errors = [self.entries[m].relight.value for m in parts]
-            weights = inverse_variance_weights(errors)
+            if self.loso is None:
+                weights = inverse_variance_weights(errors)
+                relight = RelightEstimate(blend_estimate(errors), self.entries[parts[0]].relight.method,
+                                          "the smallest of the parts' estimates")
+            else:
+                preds = [self.loso.preds[m] for m in parts]
+                weights = stacked_weights(preds, self.loso.target, self.loso.weights)
+                relight = self.loso.estimate(sum(w * p for w, p in zip(weights, preds)))
+                relight.detail += "; the weights stacked on these folds"
+            relight.detail += " (weights: " + ", ".join(f"{m} {w:.3f}" for m, w in zip(parts, weights)) + ")"
             brdf = self.brdfs[BLEND] = BlendBRDF([self.brdfs[m] for m in parts], weights)
             pred = brdf.combine([self.held_preds[m] for m in parts]) if all(m in self.held_preds for m in parts) else None
             held_err, check = self._held_out(BLEND, brdf, pred)
-            shares = ", ".join(f"{m} {w:.3f}" for m, w in zip(parts, weights))
-            relight = RelightEstimate(blend_estimate(errors), self.entries[parts[0]].relight.method,
-                                      f"the smallest of the parts' estimates (weights: {shares})")
             cand = Candidate(BLEND, heldout_relative_rms=held_err, full_rank=True, radiance_check=check, relight=relight,
                              fit_report={"parts": dict(zip(parts, weights.tolist())), "estimates": dict(zip(parts, errors))},
                              seconds=sum(self.entries[m].seconds for m in parts) + time.perf_counter() - t0)
@@ -289,6 +299,8 @@ def _wanted(model: str, n_scenes: int, estimate: bool) -> tuple[str, ...]:
     if model == "auto":
         return RICHNESS
     extra = REFERENCES if estimate and n_scenes == 1 else ()
+    if model == BLEND:
+        extra += PARTS
     return tuple(m for m in RICHNESS if m == model or m in extra)
 
 
@@ -299,9 +311,6 @@ def _analyse(data: FitData, scenes_in: list[int], lmax: int, pmax: int, wanted, 
 
 
 def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, seed, estimate, reference_tables) -> FitResult:
-    if model == BLEND and len(scenes) > 1:
-        raise InputError(f"{BLEND} blends the tables of a one-image fit; with {len(scenes)} scenes ask for one of "
-                         "the tables or auto")
     t0 = time.perf_counter()
     clock = StageClock()
     with clock("gather"):
@@ -330,9 +339,9 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     _judge(fitter, ident, list(cands))
     settings = (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables)
     if estimate:
-        _estimate(data, fitter, model, settings)
+        _estimate(data, fitter, model, settings, PARTS if BLEND in wanted else ())
     if BLEND in wanted:  # built from the other candidates' estimates
-        fitter.blend(len(scenes) == 1)
+        fitter.blend()
         _judge(fitter, ident, [BLEND])
 
     if model == "auto":
@@ -343,9 +352,9 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     if chosen not in fitter.brdfs:
         raise ValueError(f"model {chosen!r} could not be fitted: {cands[chosen].to_dict()}")
     relight = cands[chosen].relight or RelightEstimate(None, "none", "not estimated (estimate=False)")
-    if estimate and model == "auto" and len(scenes) > LOSO_MAX_FOLDS:  # the two splits differ
+    if estimate and model in ("auto", BLEND) and len(scenes) > LOSO_MAX_FOLDS:  # the two splits differ
         with data.clock("other"):
-            relight = _loso(data, [chosen], settings, True, "arcs")[chosen]
+            relight = _arcs_estimate(data, fitter, chosen, settings, model == "auto")
     report = FitReport(
         chosen_model=chosen, reason=reason, requested_model=model, solver=solver, lmax=lmax, pmax=pmax,
         n_scenes=len(scenes), pixels=counts, limb_margin_max_theta_deg=max_theta_deg, heldout_pixels=int(len(data.held)),
@@ -368,8 +377,11 @@ def _judge(fitter: _Candidates, ident: Identifiability, names: list[str]) -> Non
             fitter.entries[name].plausibility = plausibility(fitter.brdfs[name])
 
 
-def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -> None:
-    """Check every fitted candidate's radiance under other lightings and set its ``relight`` estimate."""
+def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple, parts: tuple) -> None:
+    """Check every fitted candidate's radiance under other lightings and set its ``relight`` estimate.
+
+    With several scenes the leave-one-scene-out pass also refits ``parts`` (a blend's) and is kept as
+    ``fitter.loso``."""
     cands = fitter.entries
     with data.clock("other"):
         envs = other_lightings(data.scenes[0].env)
@@ -382,17 +394,29 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple) -
         if len(data.scenes) >= 2:
             names = [m for m in fitter.brdfs if model == m or (cands[m].determined and cands[m].radiance_check is None)]
             names = sorted(names, key=lambda m: (m != model, cands[m].heldout_relative_rms or 0.0))[:LOSO_MAX_CANDIDATES]
-            split = "interleaved" if model == "auto" else "arcs"  # auto chooses on one split, reports on the other
-            estimates = _loso(data, names, settings, model == "auto", split)
+            names += [m for m in parts if m in fitter.brdfs and m not in names]
+            # auto and the blend choose on one split (candidate, weights) and report on the other
+            split = "interleaved" if model in ("auto", BLEND) else "arcs"
+            fitter.loso = _loso(data, names, settings, model == "auto", split)
+            estimates = fitter.loso.estimates(names)
         else:
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
     for m, est in estimates.items():
         cands[m].relight = est
 
 
-def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: str) -> dict[str, RelightEstimate]:
-    """Leave-one-scene-out estimates of ``names`` on the folds of ``split``, each fold refitted by :func:`_refit`."""
-    return loso_estimates(data, names, lambda fold, ms: _refit(fold, ms, settings, auto), split)
+def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: str) -> LosoPredictions:
+    """Leave-one-scene-out predictions of ``names`` on the folds of ``split``, each fold refitted by :func:`_refit`."""
+    return loso_predictions(data, names, lambda fold, ms: _refit(fold, ms, settings, auto), split)
+
+
+def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tuple, auto: bool) -> RelightEstimate:
+    """Leave-one-scene-out estimate of ``chosen`` on the ``"arcs"`` split: a blend's parts are refitted and
+    combined with the blend's weights."""
+    parts = fitter.entries[chosen].fit_report["parts"] if chosen == BLEND else {chosen: 1.0}
+    run = _loso(data, list(parts), settings, auto, "arcs")
+    missing = any(m not in run.preds for m in parts)
+    return run.estimate(None if missing else sum(w * run.preds[m] for m, w in parts.items()))
 
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:

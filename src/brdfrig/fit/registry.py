@@ -14,8 +14,9 @@ Kinds of model:
             candidate with the smallest held-out error (``bivariate+prior``); one with ``prior_references``
             takes ``references=`` measured materials' tables (``bivariate+measured``:
             :mod:`brdfrig.fit.references`);
-``blend``   one image only: the fitted tables averaged with weights from their relighting estimates
-            (``bivariate+blend``: :mod:`brdfrig.fit.blend`), built after the estimates.
+``blend``   the fitted tables averaged with weights from their relighting estimates (one image) or
+            stacked on their leave-one-scene-out predictions (several scenes) (``bivariate+blend``:
+            :mod:`brdfrig.fit.blend`), built after the estimates.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The held-out pixels of the fit's own lighting cannot see extrapolation error (MATH.md pitfall 1: a fit
 can reproduce its image to 0.1% and relight at 40%).  Two estimates look at other lighting instead:
 
-- ``leave-one-scene-out`` (two or more scenes, :func:`loso_estimates`): the scenes are split into
+- ``leave-one-scene-out`` (two or more scenes, :func:`loso_predictions`): the scenes are split into
   ``F = min(n_scenes, LOSO_MAX_FOLDS)`` folds (:func:`loso_folds`); each candidate is fitted again on
   the other folds' pixels and predicts the left-out scenes' pixels under their own lighting; the
   estimate is the weighted relative RMS error over all left-out pixels.  It measures relighting (with
@@ -33,6 +33,7 @@ that fit's): their estimate is ``sqrt(e_prior^2 + d^2)``.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -40,13 +41,14 @@ from scipy.optimize import nnls
 
 from brdfrig.fit.bivariate import BivariateBRDF, predict_tables
 from brdfrig.fit.blend import BlendBRDF
+from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.scene import Environment
 from brdfrig.fit.stream import FitData
 
 __all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "LOSO_MAX_FOLDS", "FOLD_SPLITS", "other_lightings", "loso_folds", "estimate_pixels",
-           "predict_under", "spread_estimates", "loso_estimates"]
+           "predict_under", "spread_estimates", "LosoPredictions", "loso_predictions"]
 
 OTHER_ROTATIONS = (("y", 90.0), ("y", 180.0), ("y", 270.0), ("x", 90.0), ("x", -90.0))
 """(axis, degrees) of the turned copies of the fit lighting the spread estimate predicts under."""
@@ -222,31 +224,62 @@ def loso_folds(n_scenes: int, split: str) -> list[np.ndarray]:
     raise ValueError(f"unknown leave-one-scene-out split {split!r} (known: {', '.join(FOLD_SPLITS)})")
 
 
-def loso_estimates(data: FitData, names: list[str], fit_fold: Callable[[FitData, list[str]], dict],
-                   split: str) -> dict[str, RelightEstimate]:
-    """Leave-one-scene-out relighting error of each candidate in ``names`` on the folds of ``split`` (module docstring).
+@dataclass
+class LosoPredictions:
+    """One leave-one-scene-out pass: the left-out pixels and each refitted candidate's prediction of them.
+
+    Attributes
+    ----------
+    target : (N, C) float64
+        Radiance of the left-out pixels of every fold, in fold order.
+    weights : (N,) float64
+        Their pixel weights.
+    preds : dict
+        Model name -> (N, C) prediction, for the candidates refitted on every fold with finite predictions.
+    detail : str
+        The folds, for the estimates' ``detail``.
+    """
+
+    target: np.ndarray
+    weights: np.ndarray
+    preds: dict[str, np.ndarray]
+    detail: str
+
+    def estimate(self, pred: np.ndarray | None) -> RelightEstimate:
+        """The weighted relative RMS error of ``pred`` (None: no estimate)."""
+        den = float(np.sum(self.weights[:, None] * self.target**2))
+        value = None if pred is None or den <= 0 else relative_rms(pred, self.target, self.weights)
+        return RelightEstimate(value, LOSO, self.detail)
+
+    def estimates(self, names: list[str]) -> dict[str, RelightEstimate]:
+        """:meth:`estimate` of each model in ``names`` (None for those without predictions)."""
+        return {m: self.estimate(self.preds.get(m)) for m in names}
+
+
+def loso_predictions(data: FitData, names: list[str], fit_fold: Callable[[FitData, list[str]], dict],
+                     split: str) -> LosoPredictions:
+    """Leave-one-scene-out predictions of each candidate in ``names`` on the folds of ``split`` (module docstring).
 
     ``fit_fold(data, names) -> {name: brdf}`` fits the candidates on ``data.train`` (those it can fit).
-    A candidate whose refit fails or predicts non-finite radiance gets no estimate (value None).
+    A candidate whose refit fails or predicts non-finite radiance on any fold is left out of ``preds``.
     """
     n_scenes = len(data.scenes)
     folds = loso_folds(n_scenes, split)
-    num, den, missing = dict.fromkeys(names, 0.0), 0.0, set()
+    preds: dict[str, list] = {m: [] for m in names}
+    targets, weights = [], []
     for out in folds:
         fold, test = _fold_split(data, out)
         brdfs = fit_fold(fold, names)
-        target, w = data.pool.radiance[test], data.pool.weights[test][:, None]
-        den += float(np.sum(w * target**2))
+        targets.append(data.pool.radiance[test])
+        weights.append(data.pool.weights[test])
         held_data = fold.with_split(fold.train, test)
-        for m in names:
-            if m not in brdfs:
-                missing.add(m)
-                continue
-            pred = held_data.predict_held(brdfs[m])
-            if not np.all(np.isfinite(pred)):
-                missing.add(m)
-                continue
-            num[m] += float(np.sum(w * (pred - target) ** 2))
+        for m in list(preds):
+            pred = held_data.predict_held(brdfs[m]) if m in brdfs else None
+            if pred is None or not np.all(np.isfinite(pred)):
+                del preds[m]
+            else:
+                preds[m].append(pred)
     how = FOLD_SPLITS[split].format(F=len(folds))
     detail = f"{len(folds)} folds of {n_scenes} scenes ({how}), refitted without each fold"
-    return {m: RelightEstimate(None if m in missing or den <= 0 else math.sqrt(num[m] / den), LOSO, detail) for m in names}
+    return LosoPredictions(np.concatenate(targets), np.concatenate(weights),
+                           {m: np.concatenate(p) for m, p in preds.items()}, detail)
