@@ -209,15 +209,17 @@ class _Candidates:
             errors = [self.entries[m].relight.value for m in parts]
             if self.loso is None:
                 weights = inverse_variance_weights(errors)
-                relight = RelightEstimate(blend_estimate(errors), self.entries[parts[0]].relight.method,
-                                          "the smallest of the parts' estimates")
             else:
                 preds = [self.loso.preds[m] for m in parts]
                 weights = stacked_weights(preds, self.loso.target, self.loso.weights)
-                relight = self.loso.estimate(sum(w * p for w, p in zip(weights, preds)))
+            brdf = self.brdfs[BLEND] = BlendBRDF([self.brdfs[m] for m in parts], weights)
+            if self.loso is None:
+                relight = RelightEstimate(blend_estimate(errors), self.entries[parts[0]].relight.method,
+                                          "the smallest of the parts' estimates")
+            else:
+                relight = self.loso.estimate(brdf.combine(preds))
                 relight.detail += "; the weights stacked on these folds"
             relight.detail += " (weights: " + ", ".join(f"{m} {w:.3f}" for m, w in zip(parts, weights)) + ")"
-            brdf = self.brdfs[BLEND] = BlendBRDF([self.brdfs[m] for m in parts], weights)
             pred = brdf.combine([self.held_preds[m] for m in parts]) if all(m in self.held_preds for m in parts) else None
             held_err, check = self._held_out(BLEND, brdf, pred)
             cand = Candidate(BLEND, heldout_relative_rms=held_err, full_rank=True, radiance_check=check, relight=relight,
@@ -413,10 +415,13 @@ def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: s
 def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tuple, auto: bool) -> RelightEstimate:
     """Leave-one-scene-out estimate of ``chosen`` on the ``"arcs"`` split: a blend's parts are refitted and
     combined with the blend's weights."""
-    parts = fitter.entries[chosen].fit_report["parts"] if chosen == BLEND else {chosen: 1.0}
-    run = _loso(data, list(parts), settings, auto, "arcs")
-    missing = any(m not in run.preds for m in parts)
-    return run.estimate(None if missing else sum(w * run.preds[m] for m, w in parts.items()))
+    if chosen == BLEND:
+        names, combine = list(fitter.entries[BLEND].fit_report["parts"]), fitter.brdfs[BLEND].combine
+    else:
+        names, combine = [chosen], lambda preds: preds[0]
+    run = _loso(data, names, settings, auto, "arcs")
+    missing = any(m not in run.preds for m in names)
+    return run.estimate(None if missing else combine([run.preds[m] for m in names]))
 
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:
