@@ -132,6 +132,65 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     assert {c["material"]: c["errors"]["ennis"] for c in again["cases"]} == first
 
 
+def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probes, tmp_path, capsys):
+    """A run stopped after its first material (its checkpoint written) is continued by ``--resume``: the
+    finished material is not fitted again and every number equals a run that was never stopped.  Without
+    ``--resume``, or with other options, the checkpoint is refused (exit 2) and left as it was."""
+    if not (MEASURED / "rgl").is_dir():
+        pytest.skip("../shared/data/measured is absent")
+    from brdfrig.cli.main import main
+    from brdfrig.evaluate.measured import find_materials
+    from brdfrig.evaluate.measured_report import PARTIAL_JSON, write_partial
+    from brdfrig.evaluate.measured_run import run_measured_benchmark
+
+    names = ["rgl/acrylic_felt_green", "nielsen/cardboard"]
+    argv = ["bench", "--measured", "--materials", ",".join(names), "--models", "auto,diffuse", "--size", "16",
+            "--env-rows", "16", "--relight-probes", "ennis", "--scenes", "1", "--noise", "0", "--no-progress",
+            "--no-warm-up", "--cache", str(tmp_path / "cache")]
+    assert main(argv + ["--out", str(tmp_path / "whole")]) == 0
+    whole = json.loads((tmp_path / "whole" / "measured.json").read_text())
+
+    class Stop(Exception):
+        pass
+
+    def stop(result):
+        write_partial(result, out)
+        raise Stop
+
+    out = tmp_path / "out"
+    setup = CaseSetup(16, "grace", ("ennis",), 16, 1, probes)
+    with pytest.raises(Stop):
+        run_measured_benchmark(find_materials(names), ("auto", "diffuse"), setup, cache_dir=tmp_path / "cache",
+                               progress=False, warm_up=False, checkpoint=stop)
+    checkpoint = (out / PARTIAL_JSON).read_bytes()
+    first = {c["material"] for c in json.loads(checkpoint)["cases"]}
+    assert len(first) == 1
+    capsys.readouterr()
+    for extra, says in (([], "--resume"), (["--resume", "--noise", "0.01"], "noises"), (["--resume", "--seed", "1"], "seed")):
+        assert main(argv + ["--out", str(out)] + extra) == 2
+        assert says in capsys.readouterr().err
+        assert (out / PARTIAL_JSON).read_bytes() == checkpoint
+    assert main(argv + ["--out", str(out), "--resume"]) == 0
+    assert "1 material run(s) resumed from an earlier session" in capsys.readouterr().out
+    assert not (out / PARTIAL_JSON).exists()
+    resumed = json.loads((out / "measured.json").read_text())
+
+    def numbers(run):
+        return sorted((c["material"], c["model"], c["chosen_model"], c["errors"]["ennis"], c["estimate"]) for c in run["cases"])
+
+    assert numbers(resumed) == numbers(whole) and len(resumed["cases"]) == 4
+    # the resumed material's cases are the checkpoint's, with its fit times (not fitted again)
+    saved = {(c["material"], c["model"]): c["fit_seconds"] for c in json.loads(checkpoint)["cases"]}
+    fit_seconds = {(c["material"], c["model"]): c["fit_seconds"] for c in resumed["cases"]}
+    assert {k: fit_seconds[k] for k in saved} == saved
+    # nothing left to resume; a damaged checkpoint is named
+    assert main(argv + ["--out", str(out), "--resume"]) == 2
+    assert "holds no unfinished run" in capsys.readouterr().err
+    (out / PARTIAL_JSON).write_bytes(checkpoint[: len(checkpoint) // 2])
+    assert main(argv + ["--out", str(out), "--resume"]) == 2
+    assert str(out / PARTIAL_JSON) in capsys.readouterr().err
+
+
 def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--materials", "nosuch",
                            "--measured-dir", str(tmp_path), "--out", str(tmp_path / "o")],

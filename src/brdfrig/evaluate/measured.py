@@ -482,6 +482,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--workers", type=int, default=1, metavar="N",
                    help="Dask worker processes that fit materials side by side, each with cores / N numba threads "
                         "(default: %(default)s, in this process)")
+    g.add_argument("--resume", action="store_true",
+                   help="continue the unfinished run in --out (same options): its finished materials are kept, "
+                        "the others run")
     g.add_argument("--no-warm-up", action="store_true",
                    help="skip the untimed warm-up fits (the first material's fit times then include compilation)")
 

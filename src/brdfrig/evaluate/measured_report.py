@@ -1,4 +1,4 @@
-"""Tables, summary statistics, PNGs and JSON of a measured-materials benchmark run.
+"""Tables, summary statistics, PNGs and JSON of a measured-materials benchmark run, and its checkpoint.
 
 Errors are the headline relight probe's (the first of ``--relight-probes``) unless a
 column says otherwise; statistics are over the tuning materials (not held out) and,
@@ -14,9 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from brdfrig.errors import InputError
 from brdfrig.evaluate.measured_run import MeasuredResult
 
 __all__ = ["summarize", "noise_ratios", "table_vs_microfacet", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial", "result_from_json",
+           "setup_to_json", "load_partial",
            "plot_errors", "plot_worst"]
 
 AUTO = "auto"
@@ -245,7 +247,15 @@ def format_report(result: MeasuredResult) -> str:
     if failures:
         parts.append("Failed fits:\n" + "\n".join(failures))
     summed = f" (phases summed over {result.workers} worker processes)" if result.workers > 1 else ""
-    return "\n\n".join(parts + [f"Time{summed}: {phases}; {cache}"])
+    resumed = f"; {result.resumed} material run(s) resumed from an earlier session" if result.resumed else ""
+    return "\n\n".join(parts + [f"Time{summed}: {phases}; {cache}{resumed}"])
+
+
+def setup_to_json(setup, scene_counts, noises, models, seed: int) -> dict:
+    """The ``"setup"`` of :func:`result_to_json`: what makes two runs' cases comparable."""
+    return {"size": setup.size, "fit_probe": setup.fit_probe, "relight_probes": list(setup.relight_probes),
+            "env_rows": setup.env_rows, "scene_counts": list(scene_counts), "noises": list(noises), "models": list(models),
+            "seed": seed}
 
 
 def result_to_json(result: MeasuredResult) -> dict:
@@ -254,9 +264,7 @@ def result_to_json(result: MeasuredResult) -> dict:
     cases = [{"material": c.material, "model": c.model, "chosen_model": c.chosen_model, "scenes": c.scenes,
               "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds, "cpu_seconds": c.cpu_seconds,
               "estimate": c.estimate, "estimate_method": c.estimate_method, "failure": c.failure} for c in result.cases]
-    return {"setup": {"size": s.size, "fit_probe": s.fit_probe, "relight_probes": list(s.relight_probes),
-                      "env_rows": s.env_rows, "scene_counts": list(result.scene_counts), "noises": list(result.noises),
-                      "models": list(result.models)},
+    return {"setup": setup_to_json(s, result.scene_counts, result.noises, result.models, result.seed),
             "materials": [{"name": m.name, "path": str(m.path) if m.path else None, "held_out": m.held_out}
                           for m in result.materials],
             "summary": summarize(result), "noise_ratios": noise_ratios(result), "table_vs_microfacet": table_vs_microfacet(result),
@@ -278,8 +286,33 @@ def result_from_json(data: dict) -> MeasuredResult:
                         failure=c.get("failure")) for c in data["cases"]]
     done = {c.material for c in cases}
     materials = [Material(m["name"], None, None, m["held_out"]) for m in data["materials"] if m["name"] in done]
+    cache = data.get("cache", {})
     return MeasuredResult(cases, setup, tuple(s["scene_counts"]), tuple(s["noises"]), tuple(s["models"]), materials,
-                          phases=dict(data.get("phases_seconds", {})), workers=int(data.get("workers", 1)))
+                          phases=dict(data.get("phases_seconds", {})), workers=int(data.get("workers", 1)),
+                          cache_hits=int(cache.get("hits", 0)), cache_misses=int(cache.get("misses", 0)),
+                          seed=int(s.get("seed", 0)))
+
+
+def load_partial(out: Path, setup: dict, materials: list[str]) -> MeasuredResult:
+    """The cases of the unfinished run in ``out`` (its :data:`PARTIAL_JSON`), to be continued by a run whose
+    :func:`setup_to_json` is ``setup`` over the material names ``materials``.
+
+    Raises :class:`~brdfrig.errors.InputError` naming the file when it is unreadable, or the first setting
+    in which the two runs differ (their cases would not be comparable).
+    """
+    path = Path(out) / PARTIAL_JSON
+    try:
+        data = json.loads(path.read_text())
+        saved, names = data["setup"], [m["name"] for m in data["materials"]]
+        result = result_from_json(data)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: not a readable checkpoint of the measured benchmark ({exc!r})") from exc
+    for key, value in {**setup, "materials": materials}.items():
+        old = names if key == "materials" else saved.get(key)
+        if old != value:
+            raise InputError(f"{path}: the unfinished run has {key} {old!r}, this run {value!r}; "
+                             "resume it with the same options, or give another --out")
+    return result
 
 
 PLOT_CEILING = 2.0
@@ -371,7 +404,8 @@ def _image(truth, values: np.ndarray) -> np.ndarray:
 
 def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int = 5) -> Path | None:
     """PNG: reference vs relit sphere (and |difference| x4) of the ``count`` worst materials of ``model``
-    (first scene count, noise 0 or the first noise level), under the headline probe; same exposure per row."""
+    (first scene count, noise 0 or the first noise level), under the headline probe; same exposure per row.
+    Only cases fitted in this session have images (a resumed run's earlier cases are left out, and the title says so)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -380,8 +414,9 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
     from brdfrig.report.figures import save_png
 
     scenes, noise = result.scene_counts[0], result.noises[0]
-    cases = sorted((c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise),
-                   key=lambda c: -c.error)[:count]
+    group = [c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise]
+    imaged = [c for c in group if (scenes, c.material) in result.truths and c.relit]
+    cases = sorted(imaged, key=lambda c: -c.error)[:count]
     if not cases:
         return None
     probe = result.setup.relight_probes[0]
@@ -395,7 +430,8 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
             ax.imshow(np.clip(_image(truth, values) / scale, 0, 1) ** (1 / 2.2))
             ax.set_title(f"{case.material}: {title}" if title == "reference" else title, fontsize=7)
             ax.axis("off")
-    fig.suptitle(f"worst {len(cases)} of {model} ({scenes} scene(s), noise {noise:g}, relit under {probe})", fontsize=8)
+    among = "" if len(imaged) == len(group) else f" among the {len(imaged)} fitted in this session"
+    fig.suptitle(f"worst {len(cases)} of {model}{among} ({scenes} scene(s), noise {noise:g}, relit under {probe})", fontsize=8)
     fig.tight_layout()
     return save_png(fig, path, dpi=100)
 

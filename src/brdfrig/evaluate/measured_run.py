@@ -8,7 +8,8 @@ gives every candidate model (:func:`brdfrig.evaluate.measured.fit_all_and_religh
 models it did not fit are fitted alone (fitter failures are recorded as failed cases).  One untimed warm-up fit of
 every model on a small subset of the first material's pixels runs in each process before its first timed fit
 (numba kernels load, tables get built).  With ``workers`` > 1 the materials are shared out to Dask worker
-processes of a local cluster (:func:`run_measured_benchmark`).  The optional peer (``--peer mitsuba``:
+processes of a local cluster (:func:`run_measured_benchmark`).  A run interrupted after some materials is
+continued with ``--resume`` from the cases its checkpoint holds (:func:`load_partial`).  The optional peer (``--peer mitsuba``:
 :mod:`brdfrig.evaluate.mitsuba_peer`) fits Mitsuba's ``principled`` BSDF to the
 same (noisy) pixels of the first scene, in one-scene runs only, and is relit by
 Mitsuba: one more "model" named ``peer:mitsuba``.
@@ -41,7 +42,9 @@ class MeasuredResult:
 
     ``phases`` maps a phase to seconds: wall seconds of each phase summed over the materials (over the
     ``workers`` processes side by side when more than one), ``"CPU, all threads"`` the process CPU seconds of
-    the material runs, ``"total"`` the run's wall seconds.  ``truths`` maps ``(scenes, material name)`` to its :class:`Truth` (kept for the sphere images).
+    the material runs, ``"total"`` the run's wall seconds (of every session of a resumed run).  ``truths`` maps
+    ``(scenes, material name)`` to its :class:`Truth` (kept for the sphere images; none for the resumed runs).
+    ``resumed``: material runs (material x scene count) taken from an earlier session's checkpoint.
     """
 
     cases: list[CaseResult]
@@ -55,6 +58,8 @@ class MeasuredResult:
     cache_hits: int = 0
     cache_misses: int = 0
     workers: int = 1
+    seed: int = 0
+    resumed: int = 0
 
 
 def _peer_fit(name: str):
@@ -182,16 +187,19 @@ def _run_material(material: Material, setup: CaseSetup, models: tuple, noises: t
 def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup = CaseSetup(), *,
                            scene_counts=(1,), noises=(0.0,), seed: int = 0, cache_dir: Path | None = None,
                            peer: str | None = None, progress: bool = True, warm_up: bool = True,
-                           checkpoint=None, workers: int = 1) -> MeasuredResult:
+                           checkpoint=None, workers: int = 1, resume: MeasuredResult | None = None) -> MeasuredResult:
     """Run every case (see module docstring).  ``setup.scenes`` is replaced by each of ``scene_counts``;
     ``warm_up=False`` skips the untimed warm-up fits; ``checkpoint(result)`` (if given) is called after
     each material's fits with the cases so far.  ``workers`` > 1: the materials are run by that many Dask worker
-    processes on this machine (a local cluster), each with its share of the cores as numba threads."""
+    processes on this machine (a local cluster), each with its share of the cores as numba threads.
+    ``resume``: an earlier session's result of the same run (:func:`load_partial`): its cases, times and cache
+    counts are kept and its material runs are not run again."""
     import os
     import sys
 
     from tqdm import tqdm
 
+    t_start = time.perf_counter()
     models = tuple(models)
     known = model_names()
     bad = [m for m in models if m not in known]
@@ -202,15 +210,26 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
     if peer:
         _peer_fit(peer)  # InputError now, not in every task
     result = MeasuredResult([], setup, tuple(scene_counts), tuple(noises), models + ((PEER_PREFIX + peer,) if peer else ()),
-                            list(materials), workers=workers)
-    # A fixed random order: results so far (and the ETA) are a fair sample of all materials.
-    order = [materials[k] for k in np.random.default_rng(0).permutation(len(materials))]
-    jobs = [(replace(setup, scenes=int(count)), m) for count in scene_counts for m in order]
+                            list(materials), workers=workers, seed=seed)
     for count in scene_counts:
         for key in _phase_keys(int(count)):
             result.phases[key] = 0.0
+    finished = set()
+    if resume is not None:
+        result.cases += resume.cases
+        for key, seconds in resume.phases.items():
+            result.phases[key] = result.phases.get(key, 0.0) + seconds
+        result.cache_hits, result.cache_misses = resume.cache_hits, resume.cache_misses
+        finished = {(c.scenes, c.material) for c in resume.cases}
+        result.resumed = len(finished)
+    earlier = result.phases.get("total", 0.0)
+    # A fixed random order: results so far (and the ETA) are a fair sample of all materials.
+    order = [materials[k] for k in np.random.default_rng(0).permutation(len(materials))]
+    jobs = [(replace(setup, scenes=int(count)), m) for count in scene_counts for m in order
+            if (int(count), m.name) not in finished]
     desc = "materials" if len(scene_counts) == 1 else "materials x scene counts"
-    bar = tqdm(total=len(jobs), desc=desc, unit="run", file=sys.stderr, disable=not progress, dynamic_ncols=True)
+    bar = tqdm(total=len(jobs) + result.resumed, initial=result.resumed, desc=desc, unit="run", file=sys.stderr,
+               disable=not progress, dynamic_ncols=True)
 
     def done(run: _MaterialRun) -> None:
         result.truths[(run.truth.setup.scenes, run.truth.material.name)] = run.truth
@@ -219,6 +238,7 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
             result.phases[key] = result.phases.get(key, 0.0) + seconds
         result.cache_hits += run.cache_hits
         result.cache_misses += run.cache_misses
+        result.phases["total"] = earlier + time.perf_counter() - t_start
         bar.update()
         if checkpoint is not None:
             checkpoint(result)
@@ -237,13 +257,17 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
             for fut in as_completed(futures):
                 done(fut.result())
     bar.close()
+    result.phases["total"] = earlier + time.perf_counter() - t_start
     return result
 
 
 def run_from_args(args) -> int:
     """Run the benchmark from parsed options (:func:`brdfrig.evaluate.measured.add_arguments` + ``--out``,
-    ``--probes``, ``--no-progress``), print the table and summary, write PNGs and JSON into ``--out``."""
-    from brdfrig.evaluate.measured_report import format_report, write_outputs, write_partial
+    ``--probes``, ``--no-progress``), print the table and summary, write PNGs and JSON into ``--out``.
+
+    An unfinished run in ``--out`` (its checkpoint, :data:`~brdfrig.evaluate.measured_report.PARTIAL_JSON`) is
+    continued with ``--resume`` (the same options), and is never overwritten without it."""
+    from brdfrig.evaluate.measured_report import PARTIAL_JSON, format_report, load_partial, setup_to_json, write_outputs, write_partial
 
     for name, value in (("--size", args.size), ("--env-rows", args.env_rows), ("--workers", args.workers)):
         if value < 1:
@@ -255,13 +279,22 @@ def run_from_args(args) -> int:
                  else list_materials(args.measured_dir))
     models = tuple(args.models) if args.models else model_names()
     setup = CaseSetup(args.size, args.fit_probe, tuple(args.relight_probes), args.env_rows, 1, args.probes)
-    t0 = time.perf_counter()
+    out = Path(args.out)
+    resume = None
+    if (out / PARTIAL_JSON).exists():
+        if not args.resume:
+            raise InputError(f"{out / PARTIAL_JSON} holds an unfinished run: continue it with --resume, "
+                             "or give another --out")
+        every = models + ((PEER_PREFIX + args.peer,) if args.peer else ())
+        resume = load_partial(out, setup_to_json(setup, args.scenes, args.noise, every, args.seed),
+                              [m.name for m in materials])
+    elif args.resume:
+        raise InputError(f"--resume: {out} holds no unfinished run ({PARTIAL_JSON} is absent)")
     result = run_measured_benchmark(materials, models, setup, scene_counts=tuple(args.scenes), noises=tuple(args.noise),
-                                    seed=args.seed, cache_dir=args.cache or Path(args.out) / "gt-cache", peer=args.peer,
+                                    seed=args.seed, cache_dir=args.cache or out / "gt-cache", peer=args.peer,
                                     progress=not args.no_progress, warm_up=not args.no_warm_up,
-                                    checkpoint=lambda r: write_partial(r, Path(args.out)), workers=args.workers)
-    result.phases["total"] = time.perf_counter() - t0
+                                    checkpoint=lambda r: write_partial(r, out), workers=args.workers, resume=resume)
     print(format_report(result), flush=True)
-    for path in write_outputs(result, Path(args.out)):
+    for path in write_outputs(result, out):
         print(f"wrote {path.resolve()}")
     return 0
