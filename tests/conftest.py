@@ -1,9 +1,10 @@
-"""Shared fixtures: the real probes in ../shared (skipped cleanly when absent)."""
+"""Shared fixtures: the real probes in ../shared (skipped cleanly when absent), a headless browser."""
 
 from __future__ import annotations
 
 import os
 import shutil
+import subprocess
 import tempfile
 from pathlib import Path
 
@@ -86,3 +87,29 @@ class ColourChart:
 def colour_chart() -> ColourChart:
     pytest.importorskip("colour")
     return ColourChart()
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars"]
+
+
+@pytest.fixture
+def browser(tmp_path):
+    """``open(html_path, width, height) -> (screenshot (height, width, 3) floats in [0, 1], DOM text)``: the page
+    as headless Chromium draws it (skipped when Chromium is not installed)."""
+    if CHROMIUM is None:
+        pytest.skip("chromium is not installed (scripts/setup --dev installs it)")
+
+    def open_page(page: Path, width: int = 1200, height: int = 1400):
+        import matplotlib.image
+
+        shot, profile = tmp_path / "shot.png", tmp_path / "browser-profile"
+        r = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--window-size={width},{height}",
+                            f"--screenshot={shot}", page.as_uri()], capture_output=True, text=True, timeout=120)
+        assert shot.exists(), r.stderr[-2000:]
+        dom = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--dump-dom", page.as_uri()],
+                             capture_output=True, text=True, timeout=120).stdout
+        return matplotlib.image.imread(shot)[..., :3], dom
+
+    return open_page

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import json
 import math
 import re
@@ -32,14 +33,20 @@ from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.scene import Environment
 
 
-def test_bench_quick_cli(tmp_path):
-    out = tmp_path / "bench"
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    """``brdfrig bench --quick`` (a subprocess): (its output directory, its stdout)."""
+    out = tmp_path_factory.mktemp("bench") / "bench"
     proc = subprocess.run(
         [sys.executable, "-m", "brdfrig", "bench", "--quick", "--no-progress", "--out", str(out)],
         capture_output=True, text=True, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]  # its run time is a benchmark figure, not a test
-    text = proc.stdout
+    return out, proc.stdout
+
+
+def test_bench_quick_cli(quick_run):
+    out, text = quick_run
     assert "lighting = " in text and ("real probes" in text or "procedural" in text)
     # one table row per (linear model, solver, band limit), full+prior once per band limit, one microfacet row
     table = text.split("Solver comparison")[0]
@@ -52,7 +59,8 @@ def test_bench_quick_cli(tmp_path):
         assert re.search(rf"^full\+prior\s+tikhonov\s+{l}\s+1\s+{num}\s+\d+\s", table, re.M)
     assert re.search(rf"^microfacet\s+-\s+-\s+1\s+{num}\s+\d+\s", table, re.M)
     assert "Headline timings" in text and re.search(rf"full l=p={QUICK.headline_lmax}, joint solver,\s+1 scene", text)
-    assert f"wrote {(out / 'bench.png').resolve()} and {(out / 'bench.json').resolve()}" in text
+    written = (out / "bench.png", out / "bench.json", out / "report.html")
+    assert f"wrote {written[0].resolve()}, {written[1].resolve()} and {written[2].resolve()}" in text
     assert (out / "bench.png").stat().st_size > 10_000
     assert not list(out.glob(".*tmp*"))  # no partial files left
 
@@ -81,6 +89,19 @@ def test_bench_quick_cli(tmp_path):
     assert len(list((out / "gt-cache").glob("gt-*.npy"))) == 3
     assert "ground truth: 3 rendered, 0 from" in text
 
+
+
+def test_bench_report_renders_in_chromium(quick_run, browser):
+    """report.html holds the Pareto figure and every printed table, and a browser draws it (not a blank page)."""
+    out, text = quick_run
+    pixels, dom = browser(out / "report.html")
+    assert np.mean(np.any(pixels < 0.9, axis=-1)) > 0.02  # the figure and the tables ink 4.5% of this window
+    assert np.mean(np.ptp(pixels, axis=-1) > 0.15) > 3e-4  # the figure's coloured markers (0.13%; text is grey)
+    assert dom.count("<img") == 1 and "Pareto" in dom
+    for heading in ("Time against error", "Solvers", "Headline timings", "Where the time went"):
+        assert f"<h2>{heading}</h2>" in dom
+    table = text.split("Solver comparison")[0].strip().splitlines()[-1]  # the table's last row, as printed
+    assert html.escape(table) in dom
 
 def _dominated(r: BenchRow, rows: list[BenchRow]) -> bool:
     return any(o.seconds <= r.seconds and o.relight_error <= r.relight_error

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import base64
+import html
 import json
 import re
 import subprocess
@@ -96,6 +98,7 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     if not (MEASURED / "rgl").is_dir():
         pytest.skip("../shared/data/measured is absent")
     from brdfrig.cli.main import main
+    from brdfrig.evaluate.measured_report import format_table, result_from_json
 
     out = tmp_path / "out"
     argv = ["bench", "--measured", "--materials", "rgl/acrylic_felt_green,nielsen/cardboard", "--models", "auto,diffuse",
@@ -117,9 +120,13 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     # the table's numbers are the JSON's
     auto = next(c for c in data["cases"] if c["material"] == "nielsen/cardboard" and c["model"] == "auto")
     assert re.search(rf"^nielsen/cardboard\*\s+{100 * auto['errors']['ennis']:.2f}\s", text, re.M)
+    # report.html: one self-contained page with the three figures and the printed table
+    page = (out / "report.html").read_text()
+    images = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    assert len(images) == 3 and all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in images)
+    assert "src=\"http" not in page and "<script" not in page
+    assert html.escape(format_table(result_from_json(data))) in page
     # the JSON read back prints the same table
-    from brdfrig.evaluate.measured_report import format_table, result_from_json
-
     assert format_table(result_from_json(data)) in text
     # a second run, on two Dask worker processes, reads every ground truth from the cache and fits (diffuse
     # alone) to the same numbers as this process did

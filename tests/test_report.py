@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import base64
 import re
-import shutil
 import subprocess
 import sys
 
@@ -16,10 +15,6 @@ from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.hdr.exr import write_exr
 from brdfrig.hdr.sphere import sphere_pixels
 from brdfrig.lighting import standard_lightings
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars"]
 
 
 @pytest.fixture(scope="module")
@@ -53,21 +48,11 @@ def test_the_report_is_one_self_contained_file(report):
         assert words in text
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (scripts/setup --dev installs it)")
-def test_the_report_renders_in_chromium(report, tmp_path):
-    shot = tmp_path / "shot.png"
-    profile = tmp_path / "profile"
-    r = subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={profile}", "--window-size=1200,1400",
-                        f"--screenshot={shot}", report.as_uri()], capture_output=True, text=True, timeout=120)
-    assert shot.exists(), r.stderr[-2000:]
-    import matplotlib.image
-
-    pixels = matplotlib.image.imread(shot)[..., :3]
+def test_the_report_renders_in_chromium(report, browser):
+    pixels, dom = browser(report)
     assert pixels.shape[:2] == (1400, 1200)
     ink = np.mean(np.any(pixels < 0.9, axis=-1))  # not a blank page: headings, spheres and plots take room
     assert ink > 0.05, ink
     colourful = np.mean(np.ptp(pixels, axis=-1) > 0.15)  # the relit spheres and plot lines are in colour
     assert colourful > 0.005, colourful
-    dom = subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={profile}", "--dump-dom", report.as_uri()],
-                         capture_output=True, text=True, timeout=120).stdout
     assert "estimated relighting error under other lighting" in dom and dom.count("<img") >= 5

@@ -5,14 +5,14 @@ under one lighting and relit under another: the real lat-long probes of --probes
 (default ../shared/data/probes beside the source tree) when at least two are
 present, otherwise the simulated bench's procedural room and its held-out
 lighting (the output says which). Fast cases report medians of 3 runs; slow ones
-repeat only within the time budget (the n column). A Pareto PNG and JSON of every
-number go into --out.
+repeat only within the time budget (the n column). A Pareto PNG, JSON of every
+number and report.html (the PNG and the tables) go into --out.
 
 With --measured: every material of ../shared/data/measured rendered by brute-force
 quadrature under one real probe, fitted by every model and auto, relit under two
 others; one and twelve turned scenes, noise-free and 1% noise (choose with
 --scenes and --noise); per-material table, summary (median, 90th percentile,
-worst), fit times, PNGs of the errors and of the worst five, JSON.
+worst), fit times, PNGs of the errors and of the worst five, JSON, report.html.
 
 Ground-truth renders are cached in OUT/gt-cache, keyed by every input and the
 renderer's source, so a second run skips them and a changed input or renderer
@@ -44,7 +44,8 @@ def register(subparsers) -> None:
                     __doc__)
     p.add_argument("--quick", action="store_true", help="small sphere, band limits 1-3, one scene (< 30 s)")
     p.add_argument("--out", type=Path, default=Path("bench-out"),
-                   help="directory for bench.png, bench.json and the ground-truth cache gt-cache/ (default: %(default)s)")
+                   help="directory for bench.png, bench.json, report.html and the ground-truth cache gt-cache/ "
+                        "(default: %(default)s)")
     p.add_argument("--budget", type=Range(0, 86400, open_lo=True).arg(), default=None, metavar="SECONDS",
                    help="soft time budget of the table's fits: slow cases (>= 1 s) are repeated only while it "
                         "allows; every case runs at least once, faster ones 3 times (default: 210 full, 20 quick)")
@@ -52,7 +53,8 @@ def register(subparsers) -> None:
     add_progress_argument(p)
     p.add_argument("--measured", action="store_true",
                    help="the measured-materials benchmark instead (fit under one probe, "
-                        "relight under others, every model; table, summary, errors.png, worst.png, estimates.png, measured.json)")
+                        "relight under others, every model; table, summary, errors.png, worst.png, estimates.png, "
+                        "report.html, measured.json)")
     add_measured_arguments(p)
     p.set_defaults(func=run)
 
@@ -77,6 +79,7 @@ def run(args) -> int:
                            rows_to_json, run_benchmark)
     from brdfrig.hdr.sphere import sphere_pixels
     from brdfrig.lighting import environment_from_latlong
+    from brdfrig.report.html import write_page
 
     config = QUICK if args.quick else FULL
     if args.budget is not None:
@@ -105,29 +108,29 @@ def run(args) -> int:
     result = run_benchmark(fit_env, test_env, sphere, config, lighting=lighting, progress=not args.no_progress,
                            groundtruth=cache)
 
-    print()
-    print(f"All fits: GGX alpha=0.3 sphere of {config.sphere_size}x{config.sphere_size} px; "
-          "relight_err = relative RMS vs the ground truth under the other map; "
-          f"time_s = median wall clock of n fits (n = {config.runs} below {FAST_S:g} s; slower cases as the budget allows)")
-    print(format_table(result.rows))
-    print()
-    print("Solver comparison (relighting error):")
-    print(format_solver_comparison(result.rows))
-    print()
-    print("Headline timings:")
+    tables = (f"All fits: GGX alpha=0.3 sphere of {config.sphere_size}x{config.sphere_size} px; "
+              "relight_err = relative RMS vs the ground truth under the other map; "
+              f"time_s = median wall clock of n fits (n = {config.runs} below {FAST_S:g} s; slower cases as the budget allows)\n"
+              + format_table(result.rows))
+    solvers = "Solver comparison (relighting error):\n" + format_solver_comparison(result.rows)
     targets = {1: 1.0, 12: 5.0} if (result.headline_size, result.headline_lmax) == (512, 8) else {}
     size, l = result.headline_size, result.headline_lmax
+    headline = ["Headline timings:"]
     for scenes, seconds in result.headline.items():
         verdict = f"  (target <= {targets[scenes]:g} s: {'met' if seconds <= targets[scenes] else 'NOT met'})" if scenes in targets else ""
         runs = " ".join(f"{t:.2f}" for t in result.headline_times[scenes])
-        print(f"  {size}x{size} px x 3 channels, full l=p={l}, joint solver, {scenes:>2} scene(s): {seconds:.3f} s "
-              f"(median of {runs}){verdict}")
-    print()
-    print(f"Where the time went (ground truth: {cache.misses} rendered, {cache.hits} from {cache.directory}):")
-    print(format_phases(result))
+        headline.append(f"  {size}x{size} px x 3 channels, full l=p={l}, joint solver, {scenes:>2} scene(s): {seconds:.3f} s "
+                        f"(median of {runs}){verdict}")
+    phases = (f"Where the time went (ground truth: {cache.misses} rendered, {cache.hits} from {cache.directory}):\n"
+              + format_phases(result))
+    sections = [("Time against error", tables), ("Solvers", solvers), ("Headline timings", "\n".join(headline)),
+                ("Where the time went", phases)]
+    print("\n" + "\n\n".join(text for _, text in sections))
 
     png = plot_pareto(result, args.out / "bench.png")
     out_json = args.out / "bench.json"
     atomic_write_bytes(out_json, json.dumps(rows_to_json(result), indent=1).encode())
-    print(f"\nwrote {png.resolve()} and {out_json.resolve()}", file=sys.stdout)
+    page = write_page(args.out / "report.html", f"brdfrig bench ({'quick' if args.quick else 'full'}): {lighting}",
+                      [("Relighting error against fit time (Pareto front)", png)] + sections)
+    print(f"\nwrote {png.resolve()}, {out_json.resolve()} and {page.resolve()}", file=sys.stdout)
     return 0

@@ -17,7 +17,7 @@ import numpy as np
 from brdfrig.errors import InputError
 from brdfrig.evaluate.measured_run import MeasuredResult
 
-__all__ = ["summarize", "noise_ratios", "table_vs_microfacet", "format_table", "format_summary", "format_report", "result_to_json", "write_outputs", "write_partial", "result_from_json",
+__all__ = ["summarize", "noise_ratios", "table_vs_microfacet", "format_table", "format_summary", "format_report", "report_title", "report_sections", "result_to_json", "write_outputs", "write_partial", "result_from_json",
            "setup_to_json", "load_partial",
            "plot_errors", "plot_worst"]
 
@@ -233,22 +233,31 @@ def format_summary(result: MeasuredResult) -> str:
     return text
 
 
-def format_report(result: MeasuredResult) -> str:
-    """Table, summary and where the time went."""
+def report_title(result: MeasuredResult) -> str:
+    """The report's first line: materials, sphere size, probes, models."""
     s = result.setup
-    head = (f"brdfrig measured benchmark: {len(result.materials)} materials, {s.size} px spheres, "
+    return (f"brdfrig measured benchmark: {len(result.materials)} materials, {s.size} px spheres, "
             f"fit {s.fit_probe}, relight {','.join(s.relight_probes)} ({2 * s.env_rows}x{s.env_rows}), "
             f"models {','.join(result.models)}")
-    phases = ", ".join(f"{k} {v:.1f} s" for k, v in result.phases.items())
-    cache = f"ground truth: {result.cache_misses} rendered, {result.cache_hits} from the cache"
-    parts = [head, format_table(result), format_summary(result)]
+
+
+def report_sections(result: MeasuredResult) -> list[tuple[str, str]]:
+    """``(heading, text)`` of the report after its title: the table, the summary, failed fits (if any), time."""
+    sections = [("Per material", format_table(result)), ("Summary", format_summary(result))]
     failures = [f"  {c.material} {c.model} ({c.scenes} scene(s), noise {c.noise:g}): {c.failure}"
                 for c in result.cases if c.failure]
     if failures:
-        parts.append("Failed fits:\n" + "\n".join(failures))
+        sections.append(("Failed fits", "Failed fits:\n" + "\n".join(failures)))
+    phases = ", ".join(f"{k} {v:.1f} s" for k, v in result.phases.items())
+    cache = f"ground truth: {result.cache_misses} rendered, {result.cache_hits} from the cache"
     summed = f" (phases summed over {result.workers} worker processes)" if result.workers > 1 else ""
     resumed = f"; {result.resumed} material run(s) resumed from an earlier session" if result.resumed else ""
-    return "\n\n".join(parts + [f"Time{summed}: {phases}; {cache}{resumed}"])
+    return sections + [("Time", f"Time{summed}: {phases}; {cache}{resumed}")]
+
+
+def format_report(result: MeasuredResult) -> str:
+    """Title, table, summary and where the time went (as printed)."""
+    return "\n\n".join([report_title(result)] + [text for _, text in report_sections(result)])
 
 
 def setup_to_json(setup, scene_counts, noises, models, seed: int) -> dict:
@@ -449,16 +458,22 @@ def write_partial(result: MeasuredResult, out: Path) -> Path:
 
 
 def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
-    """Write ``errors.png``, ``worst.png``, ``estimates.png`` (if ``auto`` reported estimates) and ``measured.json`` into ``out``."""
+    """Write ``errors.png``, ``worst.png``, ``estimates.png`` (if ``auto`` reported estimates), ``report.html``
+    (those figures and the printed report) and ``measured.json`` into ``out``."""
     from brdfrig.fit.brdffile import jsonable
     from brdfrig._atomic import write_bytes as atomic_write_bytes
+    from brdfrig.report.html import write_page
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [plot_errors(result, out / "errors.png")]
-    worst = plot_worst(result, out / "worst.png", AUTO if AUTO in result.models else result.models[0])
-    estimates = plot_estimates(result, out / "estimates.png")
-    paths += [p for p in (worst, estimates) if p is not None]
+    worst_of = AUTO if AUTO in result.models else result.models[0]
+    figures = [("Relighting error per material and model", plot_errors(result, out / "errors.png")),
+               (f"The worst five of {worst_of}: reference, relit, difference",
+                plot_worst(result, out / "worst.png", worst_of)),
+               ("auto: reported estimate against measured error", plot_estimates(result, out / "estimates.png"))]
+    paths = [p for _, p in figures if p is not None]
+    paths.append(write_page(out / "report.html", report_title(result),
+                            [(h, p) for h, p in figures if p is not None] + report_sections(result)))
     paths.append(atomic_write_bytes(out / "measured.json", json.dumps(jsonable(result_to_json(result)), indent=1).encode()))
     (out / PARTIAL_JSON).unlink(missing_ok=True)
     return paths

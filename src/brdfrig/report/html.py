@@ -1,11 +1,12 @@
-"""The report of a fit: one self-contained HTML file (every image inlined as a PNG data URI).
+"""Self-contained HTML reports (every image inlined as a PNG data URI): a fit's, and a benchmark's page.
 
-Sections: the summary (model, why, estimated relighting error), the fitted scenes
-(measured / rendered / difference), the fitted BRDF relit under the three standard
-lightings (:func:`brdfrig.lighting.standard_lightings`), BRDF plots
-(:mod:`brdfrig.report.plots`), the candidates and fit statistics, the
-identifiability table, warnings and the exports made.  A session's report holds
-one such part per sample.
+A fit's report (:func:`report_html`): the summary (model, why, estimated relighting error),
+the fitted scenes (measured / rendered / difference), the fitted BRDF relit under the three
+standard lightings (:func:`brdfrig.lighting.standard_lightings`), BRDF plots
+(:mod:`brdfrig.report.plots`), the candidates and fit statistics, the identifiability table,
+warnings and the exports made.  A session's report holds one such part per sample.
+
+A benchmark's page (:func:`page_html`): its figures and its printed tables, section by section.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SampleReport", "relit_spheres", "report_html", "write_report"]
+__all__ = ["SampleReport", "relit_spheres", "report_html", "write_report", "page_html", "write_page"]
 
 RELIGHT_SIZE = 96
 """Side (pixels) of the relit spheres."""
@@ -28,6 +29,7 @@ h1 { font-size: 1.6em; } h2 { font-size: 1.25em; border-bottom: 1px solid #ccc; 
 table { border-collapse: collapse; font-size: 0.85em; margin: 0.6em 0; }
 td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: right; } th { background: #f0f0f0; }
 td.l, th.l { text-align: left; } .warn { color: #a00; } figure { display: inline-block; margin: 0.4em; }
+pre { font-size: 0.8em; overflow-x: auto; }
 figcaption { font-size: 0.8em; text-align: center; } img { max-width: 100%; } .summary { font-size: 1.05em; }
 """
 
@@ -160,6 +162,10 @@ def report_html(title: str, samples: list[SampleReport], *, notes: str = "") -> 
     for s in samples:
         plot = png_bytes(brdf_figure({s.name: s.brdf}, title=f"{s.name}: {s.brdf.model}"), dpi=80)
         body.append(_sample_html(s, relit_spheres(s.brdf), plot))
+    return _document(title, body)
+
+
+def _document(title: str, body: list[str]) -> str:
     return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
             f"<style>{_CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
 
@@ -169,3 +175,23 @@ def write_report(path, title: str, samples: list[SampleReport], *, notes: str = 
     from brdfrig._atomic import write_text
 
     return write_text(path, report_html(title, samples, notes=notes))
+
+
+def page_html(title: str, sections: list[tuple[str, str | Path]]) -> str:
+    """One HTML page of ``(heading, content)`` sections: a ``str`` is shown as preformatted text (a printed
+    table), a :class:`~pathlib.Path` is a PNG file, inlined."""
+    body = [f"<h1>{html.escape(title)}</h1>"]
+    for heading, content in sections:
+        body.append(f"<h2>{html.escape(heading)}</h2>")
+        if isinstance(content, Path):
+            body.append(_img(content.read_bytes(), heading))
+        else:
+            body.append(f"<pre>{html.escape(content)}</pre>")
+    return _document(title, body)
+
+
+def write_page(path, title: str, sections: list[tuple[str, str | Path]]) -> Path:
+    """Write :func:`page_html` atomically to ``path``."""
+    from brdfrig._atomic import write_text
+
+    return write_text(path, page_html(title, sections))
