@@ -249,6 +249,13 @@ ROWS: list[Row] = [
     Row("manifest-resume", "resume with a damaged manifest", ("capture", "resume", "sess", "--yes", "--no-fit"),
         r"manifest\.json is damaged: entry 'raw/s0-a0-e0\.dng': key 'size' is missing or not a byte count",
         setup=_damage("manifest.json", lambda d: _entry(d).update(size="big"))),
+    # -- a benchmark's unfinished run: never overwritten, never resumed from nothing
+    Row("bench-unfinished", "bench --measured into the directory of an unfinished run",
+        ("bench", "--measured", "--out", "run"),
+        r"run/measured\.partial\.json holds an unfinished run: continue it with --resume, or give another --out",
+        setup=lambda ws: (ws / "run").mkdir() or (ws / "run" / "measured.partial.json").write_text("{}")),
+    Row("bench-resume-nothing", "bench --measured --resume with nothing to resume", ("bench", "--measured", "--resume", "--out", "run"),
+        r"--resume: run holds no unfinished run \(measured\.partial\.json is absent\)"),
     # -- sizes that would exhaust memory, files without what they need
     Row("probe-width-huge", "probe --width 200000", ("probe", "p.exr", "--width", "200000", "-o", "e.exr"),
         r"argument --width: must be an integer in \[8, 16384\], got '200000'"),

@@ -304,7 +304,7 @@ def result_from_json(data: dict) -> MeasuredResult:
 
 def load_partial(out: Path, setup: dict, materials: list[str]) -> MeasuredResult:
     """The cases of the unfinished run in ``out`` (its :data:`PARTIAL_JSON`), to be continued by a run whose
-    :func:`setup_to_json` is ``setup`` over the material names ``materials``.
+    :func:`setup_to_json` is ``setup`` over the material names ``materials`` (in any order).
 
     Raises :class:`~brdfrig.errors.InputError` naming the file when it is unreadable, or the first setting
     in which the two runs differ (their cases would not be comparable).
@@ -316,11 +316,13 @@ def load_partial(out: Path, setup: dict, materials: list[str]) -> MeasuredResult
         result = result_from_json(data)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a readable checkpoint of the measured benchmark ({exc!r})") from exc
-    for key, value in {**setup, "materials": materials}.items():
-        old = names if key == "materials" else saved.get(key)
-        if old != value:
-            raise InputError(f"{path}: the unfinished run has {key} {old!r}, this run {value!r}; "
-                             "resume it with the same options, or give another --out")
+    again = "resume it with the same options, or give another --out"
+    for key, value in setup.items():
+        if saved.get(key) != value:
+            raise InputError(f"{path}: the unfinished run has {key} {saved.get(key)!r}, this run {value!r}; {again}")
+    there, here = sorted(set(names) - set(materials)), sorted(set(materials) - set(names))
+    if there or here:
+        raise InputError(f"{path}: the unfinished run has other materials (only there: {there}, only here: {here}); {again}")
     return result
 
 

@@ -275,21 +275,21 @@ def run_from_args(args) -> int:
     for noise in args.noise:
         if not (np.isfinite(noise) and 0 <= noise < 1):
             raise InputError(f"--noise must be in [0, 1), got {noise}")
+    out = Path(args.out)
+    unfinished = (out / PARTIAL_JSON).exists()
+    if unfinished and not args.resume:
+        raise InputError(f"{out / PARTIAL_JSON} holds an unfinished run: continue it with --resume, or give another --out")
+    if args.resume and not unfinished:
+        raise InputError(f"--resume: {out} holds no unfinished run ({PARTIAL_JSON} is absent)")
     materials = (find_materials(args.materials, args.measured_dir) if args.materials
                  else list_materials(args.measured_dir))
     models = tuple(args.models) if args.models else model_names()
     setup = CaseSetup(args.size, args.fit_probe, tuple(args.relight_probes), args.env_rows, 1, args.probes)
-    out = Path(args.out)
     resume = None
-    if (out / PARTIAL_JSON).exists():
-        if not args.resume:
-            raise InputError(f"{out / PARTIAL_JSON} holds an unfinished run: continue it with --resume, "
-                             "or give another --out")
+    if unfinished:
         every = models + ((PEER_PREFIX + args.peer,) if args.peer else ())
         resume = load_partial(out, setup_to_json(setup, args.scenes, args.noise, every, args.seed),
                               [m.name for m in materials])
-    elif args.resume:
-        raise InputError(f"--resume: {out} holds no unfinished run ({PARTIAL_JSON} is absent)")
     result = run_measured_benchmark(materials, models, setup, scene_counts=tuple(args.scenes), noises=tuple(args.noise),
                                     seed=args.seed, cache_dir=args.cache or out / "gt-cache", peer=args.peer,
                                     progress=not args.no_progress, warm_up=not args.no_warm_up,
