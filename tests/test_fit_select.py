@@ -197,3 +197,46 @@ def test_report_round_trip_through_brdf_file_and_json(probes, tmp_path):
     assert "estimated relighting error under other lighting: 1.23%" in text
     with pytest.raises(ValueError, match="not a fit report"):
         FitReport.from_dict({"chosen_model": "diffuse"})
+
+
+def test_a_fold_takes_the_prior_family_chosen_on_all_the_data(probes, monkeypatch):
+    """Leave-one-scene-out refits of ``bivariate+prior`` fit the parametric family chosen on all the data, not every
+    family: the same table when it is the family the fold would choose itself; the other families when that fit
+    fails."""
+    from brdfrig.fit import fitter
+    from brdfrig.fit.registry import PARAMETRIC
+    from brdfrig.fit.stream import STOP_TOL, FitData, StageClock, gather_pixels, project_lighting
+
+    fit_env, _ = probes
+    normals, weights = sphere(16)
+    scenes = make_scenes(GGX(**GGX_MATERIAL), rotations(fit_env, 2), normals, weights)
+    pool, _ = gather_pixels(scenes, fitter.DEFAULT_MAX_THETA_DEG)
+    order = np.random.default_rng(0).permutation(len(pool.weights))
+    fold = FitData(scenes, pool, project_lighting(scenes, 3), order[20:], np.sort(order[:20]), StageClock(), False, STOP_TOL)
+    single_fit, fitted, failing = fitter.single_fit, [], set()
+
+    def recording(name):
+        def fit(*args, **kw):
+            fitted.append((name, getattr(kw.get("prior"), "model", None)))
+            if name in failing:
+                raise ValueError(f"{name} made to fail")
+            return single_fit(name)(*args, **kw)
+        return fit
+
+    monkeypatch.setattr(fitter, "single_fit", recording)
+
+    def refit(family):
+        fitted.clear()
+        settings = (3, 3, "joint", 3, fitter.DEFAULT_MAX_THETA_DEG, None, family)
+        return fitter._refit(fold, ["bivariate+prior"], settings, auto=False)["bivariate+prior"], [m for m, _ in fitted]
+
+    own, calls = refit(None)
+    chosen = fitted[-1][1]  # the family the fold chose for itself: the prior passed to the table's fit
+    assert calls == [*PARAMETRIC, "bivariate+prior"] and chosen in PARAMETRIC
+    for family in PARAMETRIC:
+        table, calls = refit(family)
+        assert calls == [family, "bivariate+prior"] and fitted[-1][1] == family
+        assert np.array_equal(table.table, own.table) == (family == chosen)  # the fold's own choice: its table exactly
+    failing.add(chosen)
+    table, calls = refit(chosen)
+    assert calls == [chosen, *(f for f in PARAMETRIC if f != chosen), "bivariate+prior"] and fitted[-1][1] != chosen

@@ -470,7 +470,7 @@ def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     worst_of = AUTO if AUTO in result.models else result.models[0]
     figures = [("Relighting error per material and model", plot_errors(result, out / "errors.png")),
-               (f"The worst five of {worst_of}: reference, relit, difference",
+               (f"The worst materials of {worst_of} (at most five): reference, relit, difference",
                 plot_worst(result, out / "worst.png", worst_of)),
                ("auto: reported estimate against measured error", plot_estimates(result, out / "estimates.png"))]
     paths = [p for _, p in figures if p is not None]

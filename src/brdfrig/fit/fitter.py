@@ -96,12 +96,14 @@ class _Candidates:
     """Fits candidates on one :class:`~brdfrig.fit.stream.FitData`, one pixel stream per model spec."""
 
     def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str, required: str | None = None,
-                 reference_tables=None) -> None:
+                 reference_tables=None, prior_family: str | None = None) -> None:
         """``required``: the model asked for (its fit errors propagate; another candidate's failure only skips it);
-        ``reference_tables``: those of ``bivariate+measured`` (None: :func:`brdfrig.fit.references.shipped`)."""
+        ``reference_tables``: those of ``bivariate+measured`` (None: :func:`brdfrig.fit.references.shipped`);
+        ``prior_family``: the parametric family to try first as a table's prior (:meth:`_parametric_prior`)."""
         self.data, self.ident, self.lmax, self.pmax, self.solver = data, ident, lmax, pmax, solver
         self.required = required
         self.reference_tables = reference_tables
+        self.prior_family = prior_family
         self.bands = tuple(ident.observable_bands)
         self.streams: dict[ModelSpec, Stream] = {}
         self.brdfs: dict[str, FittedBRDF] = {}
@@ -156,15 +158,16 @@ class _Candidates:
 
     def _parametric_prior(self, full_lmax: int, auto: bool) -> str:
         """Fit every parametric family (:data:`PARAMETRIC`); the one with the smallest held-out error and
-        finite, non-negative held-out radiance."""
-        for m in PARAMETRIC:
-            self.fit(m, full_lmax, auto)
-        usable = {m: self.entries[m].heldout_relative_rms for m in PARAMETRIC
-                  if m in self.brdfs and self.entries[m].radiance_check is None}
-        usable = {m: (math.inf if e is None else e) for m, e in usable.items()}
-        if not usable:
-            raise ValueError("no parametric fit to take as the prior")
-        return min(usable, key=usable.get)
+        finite, non-negative held-out radiance.  With ``prior_family`` set (a leave-one-scene-out fold takes the
+        family chosen on all the data) that family alone, unless its fit fails that test."""
+        for families in ((self.prior_family,) if self.prior_family else (), PARAMETRIC):
+            for m in families:
+                self.fit(m, full_lmax, auto)
+            usable = {m: self.entries[m].heldout_relative_rms for m in families
+                      if m in self.brdfs and self.entries[m].radiance_check is None}
+            if usable:
+                return min(usable, key=lambda m: math.inf if usable[m] is None else usable[m])
+        raise ValueError("no parametric fit to take as the prior")
 
     def _single(self, name: str, prior: str | None = None) -> Candidate:
         """A single-model fit on the training pixels of each scene (limb margin applied, held-out pixels kept
@@ -339,7 +342,8 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
             fitter.fit(name, full_lmax, model == "auto")
     cands = fitter.entries
     _judge(fitter, ident, list(cands))
-    settings = (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables)
+    prior_family = next((c.prior for m, c in cands.items() if REGISTRY[m].prior_parametric and c.prior), None)
+    settings = (lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables, prior_family)
     if estimate:
         _estimate(data, fitter, model, settings, PARTS if BLEND in wanted else ())
     if BLEND in wanted:  # built from the other candidates' estimates
@@ -426,12 +430,12 @@ def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tu
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:
     """Fit ``names`` on a fold's training pixels (the fold's own identifiability); their BRDFs."""
-    lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables = settings
+    lmax, pmax, solver, full_lmax, max_theta_deg, reference_tables, prior_family = settings
     present = sorted(set(np.unique(fold.pool.scene[fold.train]).tolist()))
     quiet = fold.with_split(fold.train, fold.held)
     quiet.progress = False
     ident = _analyse(quiet, present, lmax, pmax, names, max_theta_deg)
-    sub = _Candidates(quiet, ident, lmax, pmax, solver, reference_tables=reference_tables)
+    sub = _Candidates(quiet, ident, lmax, pmax, solver, reference_tables=reference_tables, prior_family=prior_family)
     for m in names:
         sub.fit(m, full_lmax, auto)
     return {m: b for m, b in sub.brdfs.items() if m in names}
