@@ -9,7 +9,8 @@ models it did not fit are fitted alone (fitter failures are recorded as failed c
 every model on a small subset of the first material's pixels runs in each process before its first timed fit
 (numba kernels load, tables get built).  With ``workers`` > 1 the materials are shared out to Dask worker
 processes of a local cluster (:func:`run_measured_benchmark`).  A run interrupted after some materials is
-continued with ``--resume`` from the cases its checkpoint holds (:func:`load_partial`).  The optional peer (``--peer mitsuba``:
+continued with ``--resume`` from the cases its checkpoint holds
+(:func:`~brdfrig.evaluate.measured_report.load_partial`).  The optional peer (``--peer mitsuba``:
 :mod:`brdfrig.evaluate.mitsuba_peer`) fits Mitsuba's ``principled`` BSDF to the
 same (noisy) pixels of the first scene, in one-scene runs only, and is relit by
 Mitsuba: one more "model" named ``peer:mitsuba``.
@@ -192,8 +193,8 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
     ``warm_up=False`` skips the untimed warm-up fits; ``checkpoint(result)`` (if given) is called after
     each material's fits with the cases so far.  ``workers`` > 1: the materials are run by that many Dask worker
     processes on this machine (a local cluster), each with its share of the cores as numba threads.
-    ``resume``: an earlier session's result of the same run (:func:`load_partial`): its cases, times and cache
-    counts are kept and its material runs are not run again."""
+    ``resume``: an earlier session's result of the same run (:func:`~brdfrig.evaluate.measured_report.load_partial`):
+    its cases, times and cache counts are kept and its material runs are not run again."""
     import os
     import sys
 
