@@ -81,6 +81,32 @@ def test_blend_of_constant_tables_is_the_lambertian_of_the_weighted_albedo(envs)
     assert relative_rms(together["other"][0], other.predict(env, normals)) < 1e-12
 
 
+def test_held_out_pixels_predicted_together_as_each_alone(envs):
+    """``relight.predict_held``: held-out pixels of two scenes, each under its own lighting, for two tables (one
+    pass per scene), their blend and an analytic BRDF: each the same to the last bit as its own ``predict``."""
+    from brdfrig.fit.analytic import GGX
+    from brdfrig.fit.relight import predict_held
+    from brdfrig.fit.stream import STOP_TOL, FitData, StageClock, gather_pixels, project_lighting
+
+    normals = _sphere_normals(16)
+    rng = np.random.default_rng(5)
+    tables = [BivariateBRDF(rng.random((3, 24, 8))), BivariateBRDF(rng.random((3, 32, 12)))]
+    brdfs = {"a": tables[0], "b": tables[1], "blend": BlendBRDF(tables, [0.3, 0.7]),
+             "ggx": GGX(alpha=0.2, f0=0.04, diffuse=(0.5, 0.4, 0.3))}
+    scenes = [Scene(env, normals, np.ones((len(normals), 3)), np.ones(len(normals))) for env in envs]
+    pool, _ = gather_pixels(scenes, 80.0)
+    held = np.sort(rng.permutation(len(pool.weights))[:40])
+    data = FitData(scenes, pool, project_lighting(scenes, 2), np.arange(0), held, StageClock(), False, STOP_TOL)
+    together = predict_held(data, brdfs)
+    assert set(np.unique(pool.scene[held])) == {0, 1}
+    for name, brdf in brdfs.items():
+        alone = np.empty((len(held), 3))
+        for k, scene in enumerate(scenes):
+            rows = pool.scene[held] == k
+            alone[rows] = brdf.predict(scene.env, pool.normals[held[rows]])
+        np.testing.assert_array_equal(together[name], alone, err_msg=name)
+
+
 def test_round_trip_and_bad_blends():
     rng = np.random.default_rng(5)
     blend = BlendBRDF([BivariateBRDF(rng.random((3, 24, 8))), BivariateBRDF(rng.random((3, 32, 12)), rng.random((3, 32, 12)))],

@@ -13,6 +13,8 @@ quadrature under one real probe, fitted by every model and auto, relit under two
 others; one and twelve turned scenes, noise-free and 1% noise (choose with
 --scenes and --noise); per-material table, summary (median, 90th percentile,
 worst), fit times, PNGs of the errors and of the worst five, JSON, report.html.
+After each material the cases so far go to OUT/measured.partial.json; --resume
+continues an interrupted run from it (the same options).
 
 Ground-truth renders are cached in OUT/gt-cache, keyed by every input and the
 renderer's source, so a second run skips them and a changed input or renderer

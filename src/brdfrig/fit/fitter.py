@@ -46,7 +46,7 @@ from brdfrig.fit.noise import scenes_noise
 from brdfrig.fit.references import shipped
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
 from brdfrig.fit.relight import (LOSO_MAX_FOLDS, LosoPredictions, estimate_pixels, loso_predictions, other_lightings,
-                                 predict_under, spread_estimates)
+                                 predict_held, predict_under, spread_estimates)
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
 from brdfrig.fit.select import choose, fit_warnings, judge, radiance_problem
@@ -96,14 +96,17 @@ class _Candidates:
     """Fits candidates on one :class:`~brdfrig.fit.stream.FitData`, one pixel stream per model spec."""
 
     def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str, required: str | None = None,
-                 reference_tables=None, prior_family: str | None = None) -> None:
+                 reference_tables=None, prior_family: str | None = None, judged: tuple[str, ...] | None = None) -> None:
         """``required``: the model asked for (its fit errors propagate; another candidate's failure only skips it);
         ``reference_tables``: those of ``bivariate+measured`` (None: :func:`brdfrig.fit.references.shipped`);
-        ``prior_family``: the parametric family to try first as a table's prior (:meth:`_parametric_prior`)."""
+        ``prior_family``: the parametric family to try first as a table's prior (:meth:`_parametric_prior`);
+        ``judged``: the single-model fits whose held-out pixels are predicted (None: all; a fold's refits need only
+        the parametric families', to choose a prior)."""
         self.data, self.ident, self.lmax, self.pmax, self.solver = data, ident, lmax, pmax, solver
         self.required = required
         self.reference_tables = reference_tables
         self.prior_family = prior_family
+        self.judged = judged
         self.bands = tuple(ident.observable_bands)
         self.streams: dict[ModelSpec, Stream] = {}
         self.brdfs: dict[str, FittedBRDF] = {}
@@ -179,7 +182,7 @@ class _Candidates:
             extra["references"] = self.reference_tables if self.reference_tables is not None else shipped()
         brdf, rep = single_fit(name)(data.train_scenes(), lmax=self.lmax, bands=self.bands, progress=data.progress, **extra)
         self.brdfs[name] = brdf
-        held_err, check = self._held_out(name, brdf)
+        held_err, check = self._held_out(name, brdf) if self.judged is None or name in self.judged else (None, None)
         return Candidate(name, heldout_relative_rms=held_err, full_rank=bool(rep["determined"]), fit_report=rep,
                          radiance_check=check, seconds=time.perf_counter() - t0, prior=prior)
 
@@ -188,7 +191,7 @@ class _Candidates:
         data = self.data
         if not len(data.held):
             return None, None
-        pred = data.predict_held(brdf) if pred is None else pred
+        pred = predict_held(data, {name: brdf})[name] if pred is None else pred
         self.held_preds[name] = pred
         held_err = None
         if np.all(np.isfinite(pred)):
@@ -435,7 +438,8 @@ def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict
     quiet = fold.with_split(fold.train, fold.held)
     quiet.progress = False
     ident = _analyse(quiet, present, lmax, pmax, names, max_theta_deg)
-    sub = _Candidates(quiet, ident, lmax, pmax, solver, reference_tables=reference_tables, prior_family=prior_family)
+    sub = _Candidates(quiet, ident, lmax, pmax, solver, reference_tables=reference_tables, prior_family=prior_family,
+                      judged=PARAMETRIC)
     for m in names:
         sub.fit(m, full_lmax, auto)
     return {m: b for m, b in sub.brdfs.items() if m in names}

@@ -48,7 +48,7 @@ from brdfrig.fit.scene import Environment
 from brdfrig.fit.stream import FitData
 
 __all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "LOSO_MAX_FOLDS", "FOLD_SPLITS", "other_lightings", "loso_folds", "estimate_pixels",
-           "predict_under", "spread_estimates", "LosoPredictions", "loso_predictions"]
+           "predict_under", "predict_held", "spread_estimates", "LosoPredictions", "loso_predictions"]
 
 OTHER_ROTATIONS = (("y", 90.0), ("y", 180.0), ("y", 270.0), ("x", 90.0), ("x", -90.0))
 """(axis, degrees) of the turned copies of the fit lighting the spread estimate predicts under."""
@@ -118,6 +118,18 @@ def predict_under(brdfs: dict, envs: list[Environment], normals: np.ndarray) -> 
                 pred = np.asarray(brdf.predict(env, normals), dtype=np.float64)
             preds[m].append(pred)
     return {m: np.stack(p) for m, p in preds.items()}
+
+
+def predict_held(data: FitData, brdfs: dict) -> dict[str, np.ndarray]:
+    """name -> (len(data.held), C) radiance of each BRDF at the held-out pixels, each under its own scene's
+    lighting (:func:`predict_under`: the tables share one quadrature pass per scene)."""
+    p, held = data.pool, data.held
+    out = {m: np.empty_like(p.radiance[held]) for m in brdfs}
+    for s in np.unique(p.scene[held]):
+        rows = np.flatnonzero(p.scene[held] == s)
+        for m, pred in predict_under(brdfs, [data.scenes[s].env], p.normals[held[rows]]).items():
+            out[m][rows] = pred[0]
+    return out
 
 
 def _distance2(a: np.ndarray, b: np.ndarray, energy: np.ndarray, w: np.ndarray) -> float:
@@ -272,9 +284,9 @@ def loso_predictions(data: FitData, names: list[str], fit_fold: Callable[[FitDat
         brdfs = fit_fold(fold, names)
         targets.append(data.pool.radiance[test])
         weights.append(data.pool.weights[test])
-        held_data = fold.with_split(fold.train, test)
+        fold_preds = predict_held(fold.with_split(fold.train, test), {m: brdfs[m] for m in preds if m in brdfs})
         for m in list(preds):
-            pred = held_data.predict_held(brdfs[m]) if m in brdfs else None
+            pred = fold_preds.get(m)
             if pred is None or not np.all(np.isfinite(pred)):
                 del preds[m]
             else:

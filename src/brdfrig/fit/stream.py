@@ -148,15 +148,6 @@ class FitData:
         rows = [self.train[p.scene[self.train] == k] for k in range(len(self.scenes))]
         return [Scene(s.env, p.normals[r], p.radiance[r], p.weights[r]) for s, r in zip(self.scenes, rows) if len(r)]
 
-    def predict_held(self, brdf) -> np.ndarray:
-        """``brdf``'s radiance at the held-out pixels, each under its own scene's lighting."""
-        p, held = self.pool, self.held
-        pred = np.empty_like(p.radiance[held])
-        for s in np.unique(p.scene[held]):
-            rows = np.flatnonzero(p.scene[held] == s)
-            pred[rows] = brdf.predict(self.scenes[s].env, p.normals[held[rows]])
-        return pred
-
 
 @numba.njit(cache=True, nogil=True)
 def _classify(normals, radiance, weights, cos_max):  # pragma: no cover - compiled
