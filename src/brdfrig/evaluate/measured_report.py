@@ -473,9 +473,9 @@ def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
                (f"The worst materials of {worst_of} (at most five): reference, relit, difference",
                 plot_worst(result, out / "worst.png", worst_of)),
                ("auto: reported estimate against measured error", plot_estimates(result, out / "estimates.png"))]
-    paths = [p for _, p in figures if p is not None]
-    paths.append(write_page(out / "report.html", report_title(result),
-                            [(h, p) for h, p in figures if p is not None] + report_sections(result)))
+    figures = [(h, p) for h, p in figures if p is not None]
+    paths = [p for _, p in figures]
+    paths.append(write_page(out / "report.html", report_title(result), figures + report_sections(result)))
     paths.append(atomic_write_bytes(out / "measured.json", json.dumps(jsonable(result_to_json(result)), indent=1).encode()))
     (out / PARTIAL_JSON).unlink(missing_ok=True)
     return paths
