@@ -45,8 +45,8 @@ from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
 from brdfrig.fit.noise import scenes_noise
 from brdfrig.fit.references import shipped
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
-from brdfrig.fit.relight import (LOSO_MAX_FOLDS, LosoPredictions, estimate_pixels, loso_predictions, other_lightings,
-                                 predict_held, predict_under, spread_estimates)
+from brdfrig.fit.relight import (LOSO_MAX_FOLDS, SPREAD, LosoPredictions, across_lightings, estimate_pixels,
+                                 loso_predictions, other_lightings, predict_held, predict_under, spread_estimates)
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
 from brdfrig.fit.select import choose, fit_warnings, judge, radiance_problem
@@ -113,6 +113,7 @@ class _Candidates:
         self.entries: dict[str, Candidate] = {}
         self.held_preds: dict[str, np.ndarray] = {}
         self.loso: LosoPredictions | None = None
+        self.spread: dict[str, RelightEstimate] = {}
 
     def fit(self, name: str, full_lmax: int, auto: bool) -> Candidate:
         """Fit ``name`` (``full`` and ``full+prior`` at band limit ``full_lmax``, skipped where it is < 0, or < 1 for ``auto``)."""
@@ -223,8 +224,12 @@ class _Candidates:
                 relight = RelightEstimate(blend_estimate(errors), self.entries[parts[0]].relight.method,
                                           "the smallest of the parts' estimates")
             else:
+                spreads = [self.spread[m].value for m in parts if m in self.spread]
+                if len(spreads) == len(parts):
+                    self.spread[BLEND] = RelightEstimate(blend_estimate(spreads), SPREAD, "the smallest of the parts' spreads")
                 relight = self.loso.estimate(brdf.combine(preds))
                 relight.detail += "; the weights stacked on these folds"
+                relight = across_lightings(relight, self.spread.get(BLEND))
             relight.detail += " (weights: " + ", ".join(f"{m} {w:.3f}" for m, w in zip(parts, weights)) + ")"
             pred = brdf.combine([self.held_preds[m] for m in parts]) if all(m in self.held_preds for m in parts) else None
             held_err, check = self._held_out(BLEND, brdf, pred)
@@ -390,7 +395,8 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple, p
     """Check every fitted candidate's radiance under other lightings and set its ``relight`` estimate.
 
     With several scenes the leave-one-scene-out pass also refits ``parts`` (a blend's) and is kept as
-    ``fitter.loso``."""
+    ``fitter.loso``, and the spreads as ``fitter.spread``; each estimate combines the two
+    (:func:`~brdfrig.fit.relight.across_lightings`)."""
     cands = fitter.entries
     with data.clock("other"):
         envs = other_lightings(data.scenes[0].env)
@@ -407,7 +413,8 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple, p
             # auto and the blend choose on one split (candidate, weights) and report on the other
             split = "interleaved" if model in ("auto", BLEND) else "arcs"
             fitter.loso = _loso(data, names, settings, model == "auto", split)
-            estimates = fitter.loso.estimates(names)
+            fitter.spread = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
+            estimates = {m: across_lightings(e, fitter.spread.get(m)) for m, e in fitter.loso.estimates(names).items()}
         else:
             estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
     for m, est in estimates.items():
@@ -420,15 +427,15 @@ def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: s
 
 
 def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tuple, auto: bool) -> RelightEstimate:
-    """Leave-one-scene-out estimate of ``chosen`` on the ``"arcs"`` split: a blend's parts are refitted and
-    combined with the blend's weights."""
+    """Estimate of ``chosen`` from the ``"arcs"`` split (a blend's parts refitted and combined with the blend's
+    weights) and its spread (:func:`~brdfrig.fit.relight.across_lightings`)."""
     if chosen == BLEND:
         names, combine = list(fitter.entries[BLEND].fit_report["parts"]), fitter.brdfs[BLEND].combine
     else:
         names, combine = [chosen], lambda preds: preds[0]
     run = _loso(data, names, settings, auto, "arcs")
     missing = any(m not in run.preds for m in names)
-    return run.estimate(None if missing else combine([run.preds[m] for m in names]))
+    return across_lightings(run.estimate(None if missing else combine([run.preds[m] for m in names])), fitter.spread.get(chosen))
 
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:
