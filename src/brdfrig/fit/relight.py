@@ -32,8 +32,8 @@ that fit's): their estimate is ``sqrt(e_prior^2 + d^2)``.
 With several scenes the two are combined (:func:`across_lightings`): ``sqrt(e_loso^2 + e_spread^2)``.  The
 scenes of a bench are turns of one room's lighting about the vertical: the left-out turns light the
 sphere from the elevations the fitted turns did, so leave-one-scene-out alone misses the error of lighting
-from other elevations (twelve turns of grace, relit under ennis: more than 2x low on 9 of 28 measured
-materials, none with the spread added; docs/DESIGN.md, History).  The spread's turned copies include tilts
+from other elevations (twelve turns of grace, relit under ennis: more than 2x low on 25 of 58 measured
+materials, on 3 with the spread added; docs/DESIGN.md, History).  The spread's turned copies include tilts
 about the horizontal axis, which no turn shows; the two errors are taken as independent.
 """
 
