@@ -406,6 +406,7 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple, p
             cands[m].radiance_check = cands[m].radiance_check or radiance_problem(pred, "other lightings")
             if np.all(np.isfinite(pred)):
                 preds[m] = pred
+        spread = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
         if len(data.scenes) >= 2:
             names = [m for m in fitter.brdfs if model == m or (cands[m].determined and cands[m].radiance_check is None)]
             names = sorted(names, key=lambda m: (m != model, cands[m].heldout_relative_rms or 0.0))[:LOSO_MAX_CANDIDATES]
@@ -413,10 +414,10 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple, p
             # auto and the blend choose on one split (candidate, weights) and report on the other
             split = "interleaved" if model in ("auto", BLEND) else "arcs"
             fitter.loso = _loso(data, names, settings, model == "auto", split)
-            fitter.spread = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
-            estimates = {m: across_lightings(e, fitter.spread.get(m)) for m, e in fitter.loso.estimates(names).items()}
+            fitter.spread = spread
+            estimates = {m: across_lightings(e, spread.get(m)) for m, e in fitter.loso.estimates(names).items()}
         else:
-            estimates = spread_estimates(preds, weights, {m: cands[m].heldout_relative_rms for m in preds})
+            estimates = spread
     for m, est in estimates.items():
         cands[m].relight = est
 
