@@ -21,9 +21,9 @@ without a lat-long map falls back to its own point samples (no subdivision).
 once per environment; :func:`lobe_samples` is a numba function, callable from
 other numba kernels (also inside ``prange``), that returns the samples of one
 normal.  Defaults (:data:`DEFAULT_CONE_DEG`, :data:`DEFAULT_SUBDIV`) come from a
-convergence study on the sharpest measured materials (:data:`DEFAULT_SUBDIV`;
-checked in tests/test_quadrature.py); :func:`brdfrig.fit.pbr.lobe_rule` picks a
-coarser rule for a GGX lobe of known roughness.
+convergence study on the sharpest measured materials (in :data:`DEFAULT_SUBDIV`;
+tests/test_quadrature.py checks that sub-cells converge on a narrow lobe);
+:func:`brdfrig.fit.pbr.lobe_rule` sizes the rule to a GGX lobe of known roughness.
 """
 
 from __future__ import annotations
