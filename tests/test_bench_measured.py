@@ -74,6 +74,33 @@ def test_noise_and_turned_scenes(probes, tmp_path):
     assert 0.008 < np.std(rel) < 0.012 and abs(np.mean(rel)) < 0.002
 
 
+def test_tilted_scenes_light_from_other_elevations(probes, tmp_path):
+    """The tilts arrangement: the fit probe, then the probe tilted 45, -45 and 90 degrees about +x (a rotation
+    built here by scipy, to 1e-12); a fifth tilted scene or an unknown arrangement is refused by name."""
+    from scipy.spatial.transform import Rotation
+
+    from brdfrig.errors import InputError
+    from brdfrig.evaluate.measured import scene_label
+
+    setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, scenes=4, probe_dir=probes, arrangement="tilts")
+    brdf = Lambertian(albedo=(0.8, 0.5, 0.2))
+    truth = render_truth(Material("lambert", brdf=brdf), setup, make_cache(tmp_path))
+    first = truth.scenes[0].env
+    for scene, deg in zip(truth.scenes[1:], (45.0, -45.0, 90.0)):
+        rot = Rotation.from_euler("x", deg, degrees=True).as_matrix()
+        np.testing.assert_allclose(scene.env.dirs, first.dirs @ rot.T, atol=1e-12)
+        np.testing.assert_allclose(scene.radiance, render_groundtruth(brdf, truth.normals, first.rotated(rot)),
+                                   rtol=1e-9, atol=1e-12)
+    # a 90 degree tilt moves the zenith to the horizon: the sphere's top now sees what its front saw
+    assert np.abs(truth.scenes[3].radiance - truth.scenes[0].radiance).max() > 0.05 * truth.scenes[0].radiance.max()
+    with pytest.raises(InputError, match="1..4 for tilts"):
+        CaseSetup(16, scenes=5, arrangement="tilts")
+    with pytest.raises(InputError, match="arrangement"):
+        CaseSetup(16, scenes=2, arrangement="twists")
+    assert [scene_label(1, "tilts"), scene_label(4, "tilts"), scene_label(12)] == ["1 scene", "4 tilted scenes",
+                                                                                  "12 turned scenes"]
+
+
 def test_cache_returns_the_same_array_and_rerenders_a_damaged_file(probes, tmp_path):
     setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, probe_dir=probes)
     material = Material("ggx", brdf=GGX_TRUTH)
@@ -211,6 +238,9 @@ def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--workers", "0",
                            "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "--workers" in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--arrangement", "tilts",
+                           "--scenes", "1", "6", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "1..4 for tilts" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def _case(material: str, model: str, error: float, estimate: float | None = None) -> dict:

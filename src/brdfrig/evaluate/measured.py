@@ -11,8 +11,10 @@ The standard case (issue 10; everyone tuning a model calls :func:`relight_case`)
   and under each relight probe; renders are cached on disk
   (:class:`brdfrig.evaluate.cache.CachedGroundTruth`, keyed by the material file's
   sha256, every input and the renderer's source);
-- ``scenes`` > 1: the fit lighting turned about +y by ``30 k`` degrees, k = 0 .. scenes-1
-  (a turned rig);
+- ``scenes`` > 1, ``arrangement`` "turns" (default): the fit lighting turned about +y by
+  ``30 k`` degrees, k = 0 .. scenes-1 (a rig on a turntable); "tilts": the fit lighting
+  itself, then tilted about +x by each of :data:`TILT_DEG` in turn (a rig tilted, or set up
+  again elsewhere in the room: lighting from other elevations, which turns never give);
 - noise: each fitted pixel value times ``1 + noise * N(0, 1)`` (per channel, seeded);
 - the model is fitted by :func:`brdfrig.fit.fitter.fit_brdf` (wall clock timed) and
   relit (``brdf.predict``) under each relight probe; the error is the relative RMS
@@ -61,6 +63,8 @@ __all__ = [
     "model_names",
     "list_materials",
     "find_materials",
+    "scene_rotations",
+    "scene_label",
     "render_truth",
     "fit_and_relight",
     "fit_all_and_relight",
@@ -77,6 +81,10 @@ DEFAULT_CACHE_DIR = Path(tempfile.gettempdir()) / "brdfrig-gt-cache"
 """Where :func:`relight_case` caches ground-truth renders unless told otherwise (shared by callers on this machine)."""
 TURN_DEG = 30.0
 """Angle between turned scenes (degrees about +y)."""
+TILT_DEG = (45.0, -45.0, 90.0)
+"""Tilts (degrees about +x) of the second, third and fourth scenes of the "tilts" arrangement."""
+ARRANGEMENTS = ("turns", "tilts")
+"""How the scenes after the first light the sphere (see the module docstring)."""
 MATERIAL_SUFFIXES = (".h5", ".binary")
 
 
@@ -211,12 +219,16 @@ class CaseSetup:
     env_rows: int = 64
     scenes: int = 1
     probe_dir: Path = DEFAULT_PROBE_DIR
+    arrangement: str = "turns"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.size, (int, np.integer)) and self.size >= 4):
             raise InputError(f"sphere size must be an integer >= 4 pixels, got {self.size!r}")
-        if not (isinstance(self.scenes, (int, np.integer)) and 1 <= self.scenes <= 360 / TURN_DEG):
-            raise InputError(f"scenes must be an integer in 1..{int(360 / TURN_DEG)}, got {self.scenes!r}")
+        if self.arrangement not in ARRANGEMENTS:
+            raise InputError(f"scene arrangement must be one of {', '.join(ARRANGEMENTS)}, got {self.arrangement!r}")
+        most = int(360 / TURN_DEG) if self.arrangement == "turns" else 1 + len(TILT_DEG)
+        if not (isinstance(self.scenes, (int, np.integer)) and 1 <= self.scenes <= most):
+            raise InputError(f"scenes must be an integer in 1..{most} for {self.arrangement}, got {self.scenes!r}")
         if not self.relight_probes:
             raise InputError("at least one relight probe is needed")
 
@@ -247,16 +259,30 @@ def _sphere(size: int):
     return px.rows[seen], px.cols[seen], np.ascontiguousarray(px.normals[seen]), px.weights[seen]
 
 
+def scene_rotations(setup: CaseSetup) -> list[np.ndarray | None]:
+    """The rotation of the fit lighting in each scene of ``setup`` (None: the probe as captured)."""
+    from brdfrig.sim.bench import rotation_x, rotation_y
+
+    if setup.arrangement == "turns":
+        return [None] + [rotation_y(TURN_DEG * k) for k in range(1, setup.scenes)]
+    return [None] + [rotation_x(deg) for deg in TILT_DEG[: setup.scenes - 1]]
+
+
+def scene_label(scenes: int, arrangement: str = "turns") -> str:
+    """``"1 scene"``, ``"12 turned scenes"``, ``"4 tilted scenes"``: how reports name a scene count."""
+    if scenes == 1:
+        return "1 scene"
+    return f"{scenes} {'turned' if arrangement == 'turns' else 'tilted'} scenes"
+
+
 def render_truth(material: Material, setup: CaseSetup = CaseSetup(), cache: CachedGroundTruth | None = None) -> Truth:
     """Render (or read from ``cache``) the fit scenes and relight references of ``material``."""
-    from brdfrig.sim.bench import rotation_y
-
     cache = make_cache() if cache is None else cache
     rows, cols, normals, weights = _sphere(setup.size)
     fit_env = probe_environment(setup.fit_probe, setup.env_rows, setup.probe_dir)
     scenes = []
-    for k in range(setup.scenes):
-        env = fit_env if k == 0 else fit_env.rotated(rotation_y(TURN_DEG * k))
+    for rotation in scene_rotations(setup):
+        env = fit_env if rotation is None else fit_env.rotated(rotation)
         scenes.append(Scene(env, normals, cache(material, normals, env, identity=material.identity()), weights))
     relight = {}
     for name in setup.relight_probes:
@@ -433,7 +459,7 @@ def _as_material(material) -> Material:
 
 def relight_case(material, model: str, *, size: int = 96, fit_probe: str = "grace",
                  relight_probes: tuple[str, ...] = ("ennis", "pisa"), env_rows: int = 64, scenes: int = 1,
-                 noise: float = 0.0, seed: int = 0, cache_dir: str | Path = DEFAULT_CACHE_DIR,
+                 arrangement: str = "turns", noise: float = 0.0, seed: int = 0, cache_dir: str | Path = DEFAULT_CACHE_DIR,
                  probe_dir: str | Path = DEFAULT_PROBE_DIR) -> CaseResult:
     """The standard case for one material and one model (see module docstring).
 
@@ -444,11 +470,12 @@ def relight_case(material, model: str, *, size: int = 96, fit_probe: str = "grac
         object the ground-truth renderer takes (e.g. :class:`brdfrig.fit.analytic.GGX`).
     model : str
         A model name of the fitter (:func:`model_names`).
-    size, fit_probe, relight_probes, env_rows, scenes : see :class:`CaseSetup`.
+    size, fit_probe, relight_probes, env_rows, scenes, arrangement : see :class:`CaseSetup`.
     noise, seed : relative pixel noise of the fit images and its seed.
     cache_dir : where ground-truth renders are cached.
     """
-    setup = CaseSetup(int(size), fit_probe, tuple(relight_probes), int(env_rows), int(scenes), Path(probe_dir))
+    setup = CaseSetup(int(size), fit_probe, tuple(relight_probes), int(env_rows), int(scenes), Path(probe_dir),
+                      arrangement)
     truth = render_truth(_as_material(material), setup, make_cache(cache_dir))
     return fit_and_relight(truth, model, noise=noise, seed=seed)
 
@@ -466,7 +493,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="models (default: every model of the fitter, auto first)")
     g.add_argument("--scenes", type=int, nargs="+", default=[1, 12], metavar="N",
                    help="scene counts (1 = the fit probe; 12 = turned in 30 degree steps; default: 1 12; "
-                        "split a long run with --scenes 1 and --scenes 12)")
+                        "split a long run with --scenes 1 and --scenes 12; at most 4 with --arrangement tilts)")
+    g.add_argument("--arrangement", choices=ARRANGEMENTS, default="turns",
+                   help="scenes after the first: the fit probe turned about the vertical in 30 degree steps (turns), "
+                        "or tilted about the horizontal by 45, -45 and 90 degrees (tilts) (default: %(default)s)")
     g.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.01], metavar="SIGMA",
                    help="relative pixel noise levels, seeded (default: 0 0.01)")
     g.add_argument("--size", type=int, default=96, help="sphere image size in pixels (default: %(default)s)")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from brdfrig.errors import InputError
+from brdfrig.evaluate.measured import scene_label
 from brdfrig.evaluate.measured_run import MeasuredResult
 
 __all__ = ["summarize", "noise_ratios", "table_vs_microfacet", "format_table", "format_summary", "format_report", "report_title", "report_sections", "result_to_json", "write_outputs", "write_partial", "result_from_json",
@@ -182,7 +183,7 @@ def format_table(result: MeasuredResult) -> str:
     lines = []
     width = max([len(m.name) for m in result.materials] + [8]) + 1
     for (scenes, noise), by_mat in _groups(result).items():
-        lines.append(f"-- {scenes} scene(s), noise {noise:g}: relighting error (%) under {probe}; "
+        lines.append(f"-- {scene_label(scenes, result.setup.arrangement)}, noise {noise:g}: relighting error (%) under {probe}; "
                      f"fit under {result.setup.fit_probe}; * = held out from tuning")
         head = f"{'material':<{width}} " + " ".join(f"{m[:10]:>10}" for m in result.models)
         lines.append(head + "  auto chose   estimate")
@@ -220,7 +221,7 @@ def format_summary(result: MeasuredResult) -> str:
         for r in noise:
             over = r[f"over_{NOISE_FACTOR}x"]
             listed = ", ".join(f"{m} {100 * r['errors'][m][0]:.2f} -> {100 * r['errors'][m][1]:.2f}%" for m in over[:5])
-            text += (f"\n  {r['scenes']} scene(s), noise {r['noise']:g}, {r['n']} materials: median {_pct(r['noisy']['median']).strip()}% "
+            text += (f"\n  {scene_label(r['scenes'], result.setup.arrangement)}, noise {r['noise']:g}, {r['n']} materials: median {_pct(r['noisy']['median']).strip()}% "
                      f"({r['ratio']['median']:.2f}x), p90 {_pct(r['noisy']['p90']).strip()}% ({r['ratio']['p90']:.2f}x), "
                      f"worst {_pct(r['noisy']['worst']).strip()}% ({r['ratio']['worst']:.2f}x); per material median "
                      f"{r['median_material_ratio']:.2f}x, over {NOISE_FACTOR}x on {len(over)}" + (f" ({listed})" if over else ""))
@@ -228,7 +229,7 @@ def format_summary(result: MeasuredResult) -> str:
     if groups:
         text += "\n\nTables against microfacet on the groups that are not GGX-like (table better on k of n; medians %)"
         for r in groups:
-            text += (f"\n  {r['scenes']} scene(s), noise {r['noise']:g}, {r['table']:<18} {r['group']:<7} {r['table_better']:>2} of "
+            text += (f"\n  {scene_label(r['scenes'], result.setup.arrangement)}, noise {r['noise']:g}, {r['table']:<18} {r['group']:<7} {r['table_better']:>2} of "
                      f"{r['n']:<2}  {_pct(r['table_median']).strip()} vs {_pct(r['microfacet_median']).strip()}")
     return text
 
@@ -244,7 +245,7 @@ def report_title(result: MeasuredResult) -> str:
 def report_sections(result: MeasuredResult) -> list[tuple[str, str]]:
     """``(heading, text)`` of the report after its title: the table, the summary, failed fits (if any), time."""
     sections = [("Per material", format_table(result)), ("Summary", format_summary(result))]
-    failures = [f"  {c.material} {c.model} ({c.scenes} scene(s), noise {c.noise:g}): {c.failure}"
+    failures = [f"  {c.material} {c.model} ({scene_label(c.scenes, result.setup.arrangement)}, noise {c.noise:g}): {c.failure}"
                 for c in result.cases if c.failure]
     if failures:
         sections.append(("Failed fits", "Failed fits:\n" + "\n".join(failures)))
@@ -263,7 +264,7 @@ def format_report(result: MeasuredResult) -> str:
 def setup_to_json(setup, scene_counts, noises, models, seed: int) -> dict:
     """The ``"setup"`` of :func:`result_to_json`: what makes two runs' cases comparable."""
     return {"size": setup.size, "fit_probe": setup.fit_probe, "relight_probes": list(setup.relight_probes),
-            "env_rows": setup.env_rows, "scene_counts": list(scene_counts), "noises": list(noises), "models": list(models),
+            "env_rows": setup.env_rows, "scene_counts": list(scene_counts), "arrangement": setup.arrangement, "noises": list(noises), "models": list(models),
             "seed": seed}
 
 
@@ -287,7 +288,8 @@ def result_from_json(data: dict) -> MeasuredResult:
     from brdfrig.evaluate.measured import CaseResult, CaseSetup, Material
 
     s = data["setup"]
-    setup = CaseSetup(int(s["size"]), s["fit_probe"], tuple(s["relight_probes"]), int(s["env_rows"]))
+    setup = CaseSetup(int(s["size"]), s["fit_probe"], tuple(s["relight_probes"]), int(s["env_rows"]),
+                      arrangement=s.get("arrangement", "turns"))  # runs before tilts existed only turned
     cases = [CaseResult(c["material"], c["model"], c["chosen_model"], c["scenes"], c["noise"],
                         {k: (math.nan if v is None else v) for k, v in c["errors"].items()},
                         math.nan if c["fit_seconds"] is None else c["fit_seconds"], c["estimate"], c["held_out"],
@@ -356,7 +358,7 @@ def plot_errors(result: MeasuredResult, path: Path) -> Path:
             ax.set_yscale("log")
         ax.set_ylim(top=1.5 * PLOT_CEILING)
         ax.set_ylabel("relighting error")
-        ax.set_title(f"{scenes} scene(s), noise {noise:g}: fit {result.setup.fit_probe}, "
+        ax.set_title(f"{scene_label(scenes, result.setup.arrangement)}, noise {noise:g}: fit {result.setup.fit_probe}, "
                      f"relight {result.setup.relight_probes[0]} (* held out; errors above "
                      f"{PLOT_CEILING:.0%} drawn at {PLOT_CEILING:.0%})", fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
@@ -388,7 +390,7 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
             pts = [(c.error, c.estimate) for c in group if c.held_out == held]
             if pts:
                 x, y = np.array(pts).T
-                ax.plot(x, y, "os^D"[k % 4], color=f"C{k}", mfc=fill, ms=5, label=f"{scenes} scene(s), noise {noise:g}"
+                ax.plot(x, y, "os^D"[k % 4], color=f"C{k}", mfc=fill, ms=5, label=f"{scene_label(scenes, result.setup.arrangement)}, noise {noise:g}"
                         + (f": {inside}/{len(group)} within {ESTIMATE_FACTOR:g}x" if not held else " (held out)"))
     lo = 0.5 * min(min(c.error, c.estimate) for c in cases)
     hi = 2.0 * max(max(c.error, c.estimate) for c in cases)
@@ -442,7 +444,7 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
             ax.set_title(f"{case.material}: {title}" if title == "reference" else title, fontsize=7)
             ax.axis("off")
     among = "" if len(imaged) == len(group) else f" among the {len(imaged)} fitted in this session"
-    fig.suptitle(f"worst {len(cases)} of {model}{among} ({scenes} scene(s), noise {noise:g}, relit under {probe})", fontsize=8)
+    fig.suptitle(f"worst {len(cases)} of {model}{among} ({scene_label(scenes, result.setup.arrangement)}, noise {noise:g}, relit under {probe})", fontsize=8)
     fig.tight_layout()
     return save_png(fig, path, dpi=100)
 

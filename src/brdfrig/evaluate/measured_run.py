@@ -285,7 +285,8 @@ def run_from_args(args) -> int:
     materials = (find_materials(args.materials, args.measured_dir) if args.materials
                  else list_materials(args.measured_dir))
     models = tuple(args.models) if args.models else model_names()
-    setup = CaseSetup(args.size, args.fit_probe, tuple(args.relight_probes), args.env_rows, 1, args.probes)
+    setup = CaseSetup(args.size, args.fit_probe, tuple(args.relight_probes), args.env_rows, 1, args.probes,
+                      args.arrangement)
     resume = None
     if unfinished:
         every = models + ((PEER_PREFIX + args.peer,) if args.peer else ())

@@ -37,7 +37,7 @@ from brdfrig.hdr.envmap import latlong_directions, sample_latlong
 from brdfrig.hdr.sphere import sphere_pixels
 from brdfrig.lighting import environment_from_latlong
 
-__all__ = ["procedural_environment", "rotation_y", "SimBench", "SAMPLE_NAMES", "BASE_FRAME", "BASE_CIRCLES"]
+__all__ = ["procedural_environment", "rotation_x", "rotation_y", "SimBench", "SAMPLE_NAMES", "BASE_FRAME", "BASE_CIRCLES"]
 
 #: Frame size (H, W) at scale 1 and the circles (cx, cy, r) of the probe and samples, in pixels.
 BASE_FRAME = (240, 640)
@@ -58,6 +58,13 @@ def rotation_y(angle_deg: float) -> np.ndarray:
     a = math.radians(angle_deg)
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotation_x(angle_deg: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by ``angle_deg`` about +x (the camera's horizontal: a tilted rig)."""
+    a = math.radians(angle_deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def procedural_environment(dirs) -> np.ndarray:
