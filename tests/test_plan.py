@@ -63,13 +63,13 @@ def test_impossible_snr_is_refused():
         auto_bracket(1.0, 10.0, full_well_e=100, read_noise_e=2, target_snr=50, base_time_s=0.01)
 
 
-def plan_config(exposure):
+def plan_config(exposure, model="full"):
     return session_config_from_dict({
         "rig": {"carries": "rig", "turntable": {"backend": "sim", "speed_deg_s": 30},
                 "camera": {"backend": "sim", "overhead_s": 0.5}},
         "plan": {"scene_angles": [0, 30, 60], "exposure": exposure,
                  "samples": [{"name": "a", "circle": [1, 1, 1]}]},
-        "fit": {"model": "full", "lmax": 4},
+        "fit": {"model": model, "lmax": 4},
     }, "t.toml")
 
 
@@ -81,3 +81,6 @@ def test_plan_counts_shots_time_and_scenes_needed():
     text = describe_plan(plan)
     assert "6 shots" in text and "about 10 s" in text
     assert "needs >= 5 differing scenes" in text and "WARNING: 3 scene(s) planned, fewer than the 5 needed" in text
+    assert "tilted or set up elsewhere" not in text  # the full model: turns are what it needs
+    # the tables (auto's candidates) are told that turns of the rig keep the elevations (measured: README, real materials)
+    assert "tilted or set up elsewhere in the room" in describe_plan(build_plan(plan_config([0.5], model="auto")))

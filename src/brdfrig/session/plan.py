@@ -185,6 +185,12 @@ def describe_plan(plan: Plan) -> str:
     ]
     need = plan.scenes_needed
     lines.append(f"  identifiability: {need['text']}")
+    if cfg.rig.carries == "rig" and plan.n_scenes > 1 and (cfg.fit.model == "auto" or cfg.fit.model.startswith("bivariate")):
+        lines.append(
+            "  note: turns of the whole rig light the sphere from the same elevations in every scene; the tables "
+            "(bivariate models) learn more from scenes tilted or set up elsewhere in the room (carries = \"samples\": "
+            "the run prompts for each scene; README, real materials)"
+        )
     if need["scenes"] is not None and plan.n_scenes < need["scenes"]:
         lines.append(
             f"  WARNING: {plan.n_scenes} scene(s) planned, fewer than the {need['scenes']} needed: the fit will "
