@@ -59,13 +59,13 @@ def test_exact_family_relights_at_zero_and_error_is_the_relative_rms(probes, tmp
 def test_noise_and_turned_scenes(probes, tmp_path):
     """Twelve turned scenes are renders under the fit probe turned 30 k degrees about +y; 1% noise is seeded."""
     from brdfrig.evaluate.measured import noisy_scenes
-    from brdfrig.sim.bench import rotation_y
+    from brdfrig.fit.rotation import axis_rotation
 
     setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, scenes=3, probe_dir=probes)
     brdf = Lambertian(albedo=(0.8, 0.5, 0.2))
     truth = render_truth(Material("lambert", brdf=brdf), setup, make_cache(tmp_path))
     assert len(truth.scenes) == 3
-    turned = truth.scenes[0].env.rotated(rotation_y(60.0))
+    turned = truth.scenes[0].env.rotated(axis_rotation("y", 60.0))
     np.testing.assert_allclose(truth.scenes[2].env.dirs, turned.dirs, atol=1e-12)
     np.testing.assert_array_equal(truth.scenes[2].radiance, render_groundtruth(brdf, truth.normals, turned))
     a, b = noisy_scenes(truth.scenes, 0.01, seed=3), noisy_scenes(truth.scenes, 0.01, seed=3)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from brdfrig.fit.rotation import euler_zyz, local_lighting, normal_frames, rotate_coeffs, wigner_d_real
+from brdfrig.fit.rotation import axis_rotation, euler_zyz, local_lighting, normal_frames, rotate_coeffs, wigner_d_real
 from brdfrig.fit.sh import sh_eval
 from brdfrig.fit.shproject import reconstruct
 
@@ -88,6 +88,18 @@ def test_rotate_coeffs_is_the_rotated_function():
     w = random_dirs(64, seed=4)
     for k in range(5):  # coefficients of w -> f(R^T w)
         assert np.abs(reconstruct(rc[k], w) - reconstruct(c, w @ r[k])).max() <= 1e-12
+
+
+@pytest.mark.parametrize("axis", ["x", "y", "z"])
+@pytest.mark.parametrize("degrees", [0.0, 45.0, -45.0, 90.0, 137.0])
+def test_axis_rotation_matches_scipy(axis, degrees):
+    expected = Rotation.from_euler(axis, degrees, degrees=True).as_matrix()
+    assert np.abs(axis_rotation(axis, degrees) - expected).max() < 1e-15
+
+
+def test_axis_rotation_refuses_an_unknown_axis():
+    with pytest.raises(ValueError, match="axis must be 'x', 'y' or 'z', got 'w'"):
+        axis_rotation("w", 10.0)
 
 
 def test_normal_frames():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from brdfrig.fit.groundtruth import render_groundtruth
-from brdfrig.sim.bench import BACKDROP, SimBench, procedural_environment, rotation_y
+from brdfrig.fit.rotation import axis_rotation
+from brdfrig.sim.bench import BACKDROP, SimBench, procedural_environment
 
 
 @pytest.fixture(scope="module")
@@ -63,15 +64,15 @@ def test_rig_rotation_turns_the_room_about_plus_y(bench):
     n = np.array([[(j + 0.5 - cx) / r, (cy - i - 0.5) / r, 0.0]])
     n[0, 2] = math.sqrt(1 - n[0, 0] ** 2 - n[0, 1] ** 2)
     refl = 2 * n[0, 2] * n[0] - np.array([0, 0, 1.0])
-    expected = bench.probe_albedo * procedural_environment(rotation_y(90.0) @ refl) * bench.blemish_factor(n)[0]
-    assert np.allclose(rotation_y(90.0) @ [0, 0, 1.0], [1, 0, 0])
+    expected = bench.probe_albedo * procedural_environment(axis_rotation("y", 90.0) @ refl) * bench.blemish_factor(n)[0]
+    assert np.allclose(axis_rotation("y", 90.0) @ [0, 0, 1.0], [1, 0, 0])
     np.testing.assert_allclose(bench.radiance(90.0)[i, j], expected, rtol=0.02)
     # with the rig turning, the blemishes ride with the camera: the probe/env ratio is the same at every angle
     rows, cols, nn = probe_offsets(bench)
     v = np.array([0.0, 0.0, 1.0])
     rr = 2 * (nn @ v)[:, None] * nn - v
     for angle in (0.0, 90.0):
-        ratio = bench.radiance(angle)[rows, cols, 1] / procedural_environment(rr @ rotation_y(angle).T)[:, 1]
+        ratio = bench.radiance(angle)[rows, cols, 1] / procedural_environment(rr @ axis_rotation("y", angle).T)[:, 1]
         assert np.median(np.abs(ratio / (bench.probe_albedo * bench.blemish_factor(nn)) - 1)) < 0.01
 
 
@@ -83,7 +84,7 @@ def test_samples_carried_table_moves_blemishes_only():
         np.testing.assert_array_equal(a[sl], c[sl])
     rows, cols, n = probe_offsets(b)
     moved = np.abs(a[rows, cols, 1] / c[rows, cols, 1] - 1) > 0.05
-    expected = np.abs(b.blemish_factor(n) / b.blemish_factor(n @ rotation_y(40.0)) - 1) > 0.05
+    expected = np.abs(b.blemish_factor(n) / b.blemish_factor(n @ axis_rotation("y", 40.0)) - 1) > 0.05
     assert moved.sum() > 20
     assert np.mean(moved == expected) > 0.98
 

@@ -50,6 +50,7 @@ from brdfrig.errors import InputError
 from brdfrig.evaluate.cache import CachedGroundTruth, brdf_identity
 from brdfrig.evaluate.probes import DEFAULT_PROBE_DIR, probe_environment
 from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment, Scene
 
 __all__ = [
@@ -261,11 +262,9 @@ def _sphere(size: int):
 
 def scene_rotations(setup: CaseSetup) -> list[np.ndarray | None]:
     """The rotation of the fit lighting in each scene of ``setup`` (None: the probe as captured)."""
-    from brdfrig.sim.bench import rotation_x, rotation_y
-
     if setup.arrangement == "turns":
-        return [None] + [rotation_y(TURN_DEG * k) for k in range(1, setup.scenes)]
-    return [None] + [rotation_x(deg) for deg in TILT_DEG[: setup.scenes - 1]]
+        return [None] + [axis_rotation("y", TURN_DEG * k) for k in range(1, setup.scenes)]
+    return [None] + [axis_rotation("x", deg) for deg in TILT_DEG[: setup.scenes - 1]]
 
 
 def scene_label(scenes: int, arrangement: str = "turns") -> str:

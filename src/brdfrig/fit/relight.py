@@ -51,6 +51,7 @@ from brdfrig.fit.blend import BlendBRDF
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment
 from brdfrig.fit.stream import FitData
 
@@ -84,16 +85,9 @@ LOSO = "leave-one-scene-out"
 ACROSS = "leave-one-scene-out and rotated-lighting spread"
 
 
-def _rotation(axis: str, degrees: float) -> np.ndarray:
-    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
-    if axis == "y":
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 def other_lightings(env: Environment) -> list[Environment]:
     """``env`` turned by each of :data:`OTHER_ROTATIONS`."""
-    return [env.rotated(_rotation(axis, deg)) for axis, deg in OTHER_ROTATIONS]
+    return [env.rotated(axis_rotation(axis, deg)) for axis, deg in OTHER_ROTATIONS]
 
 
 def estimate_pixels(data: FitData, count: int = ESTIMATE_PIXELS) -> tuple[np.ndarray, np.ndarray]:

@@ -39,6 +39,7 @@ time) without building any ``D`` matrix.
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
@@ -49,6 +50,7 @@ import numpy as np
 from brdfrig.fit.sh import check_lmax, check_unit_dirs, sh_degree
 
 __all__ = [
+    "axis_rotation",
     "euler_zyz",
     "local_lighting",
     "normal_frames",
@@ -367,6 +369,31 @@ def rotate_coeffs(coeffs, rotations) -> np.ndarray:
     """
     c, lmax = _check_coeffs(coeffs)
     return _apply_zyz(c, 0, lmax, *euler_zyz(rotations))
+
+
+def axis_rotation(axis: str, degrees: float) -> np.ndarray:
+    """(3, 3) right-handed rotation by ``degrees`` about ``+x``, ``+y`` or ``+z``.
+
+    Parameters
+    ----------
+    axis : {"x", "y", "z"}
+        ``"y"`` is the turntable axis, ``"x"`` the camera's horizontal (a tilted rig).
+    degrees : float
+        Angle in degrees, counter-clockwise looking down the axis toward the origin.
+
+    Returns
+    -------
+    (3, 3) float64
+    """
+    if axis not in ("x", "y", "z"):
+        raise ValueError(f"axis must be 'x', 'y' or 'z', got {axis!r}")
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    i, j = {"x": (1, 2), "y": (2, 0), "z": (0, 1)}[axis]
+    out = np.eye(3)
+    out[i, i] = out[j, j] = c
+    out[i, j], out[j, i] = -s, s
+    return out
 
 
 def _normal_angles(normals) -> tuple[np.ndarray, np.ndarray]:

@@ -32,12 +32,13 @@ import numpy as np
 
 from brdfrig.fit.analytic import GGX, AnalyticBRDF, Lambertian
 from brdfrig.fit.groundtruth import render_groundtruth
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment
 from brdfrig.hdr.envmap import latlong_directions, sample_latlong
 from brdfrig.hdr.sphere import sphere_pixels
 from brdfrig.lighting import environment_from_latlong
 
-__all__ = ["procedural_environment", "rotation_x", "rotation_y", "SimBench", "SAMPLE_NAMES", "BASE_FRAME", "BASE_CIRCLES"]
+__all__ = ["procedural_environment", "SimBench", "SAMPLE_NAMES", "BASE_FRAME", "BASE_CIRCLES"]
 
 #: Frame size (H, W) at scale 1 and the circles (cx, cy, r) of the probe and samples, in pixels.
 BASE_FRAME = (240, 640)
@@ -51,20 +52,6 @@ _WINDOWS = (  # (azimuth of centre in rad about +y from +z, half width rad, bott
     (1.9, 0.35, 0.05, 0.55, (4.0, 3.6, 3.0)),
     (-2.2, 0.25, 0.10, 0.70, (2.5, 2.8, 3.2)),
 )
-
-
-def rotation_y(angle_deg: float) -> np.ndarray:
-    """(3, 3) right-handed rotation by ``angle_deg`` about +y (the turntable axis)."""
-    a = math.radians(angle_deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rotation_x(angle_deg: float) -> np.ndarray:
-    """(3, 3) right-handed rotation by ``angle_deg`` about +x (the camera's horizontal: a tilted rig)."""
-    a = math.radians(angle_deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def procedural_environment(dirs) -> np.ndarray:
@@ -178,7 +165,7 @@ class SimBench:
 
     def lighting_rotation(self, table_angle_deg: float) -> np.ndarray:
         """(3, 3) rotation taking camera-frame directions to room directions at this table angle."""
-        return rotation_y(table_angle_deg) if self.carries == "rig" else np.eye(3)
+        return axis_rotation("y", table_angle_deg) if self.carries == "rig" else np.eye(3)
 
     def environment_map(self, table_angle_deg: float = 0.0, height: int | None = None) -> np.ndarray:
         """The lighting in the camera frame as a lat-long map (height, 2 height, 3), float64."""
@@ -193,8 +180,8 @@ class SimBench:
     def heldout_environment(self) -> Environment:
         """A lighting no capture sees (room turned 137 deg and tilted, colours reversed), for scoring relighting."""
         dirs, _ = latlong_directions(self.env_height, 2 * self.env_height)
-        tilt = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(0.35), -math.sin(0.35)], [0.0, math.sin(0.35), math.cos(0.35)]])
-        return environment_from_latlong(procedural_environment(dirs @ (tilt @ rotation_y(137.0)).T)[..., ::-1])
+        turn = axis_rotation("x", math.degrees(0.35)) @ axis_rotation("y", 137.0)
+        return environment_from_latlong(procedural_environment(dirs @ turn.T)[..., ::-1])
 
     # -- rendering ------------------------------------------------------------------------------
     @cached_property
@@ -244,7 +231,7 @@ class SimBench:
         v = np.array([0.0, 0.0, 1.0])
         reflected = 2.0 * (normals @ v)[:, None] * normals - v
         fine = self.environment_map(table_angle_deg, self.probe_env_height)
-        body = normals if self.carries == "rig" else normals @ rotation_y(table_angle_deg)  # R^T n, row-wise
+        body = normals if self.carries == "rig" else normals @ axis_rotation("y", table_angle_deg)  # R^T n, row-wise
         return self.probe_albedo * sample_latlong(fine, reflected) * self.blemish_factor(body)[:, None]
 
     def radiance(self, table_angle_deg: float) -> np.ndarray:
