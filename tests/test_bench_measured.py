@@ -101,6 +101,31 @@ def test_tilted_scenes_light_from_other_elevations(probes, tmp_path):
                                                                                   "12 turned scenes"]
 
 
+def test_a_turned_relight_probe_is_the_probe_rotated(probes, tmp_path):
+    """``grace@y180`` is grace turned 180 degrees about +y (scipy's rotation, to 1e-12) with the same radiance, and
+    its truth is the ground truth under that rotation; a malformed turn is refused naming the probe and the form."""
+    from scipy.spatial.transform import Rotation
+
+    from brdfrig.errors import InputError
+    from brdfrig.evaluate.probes import probe_environment
+
+    plain, turned = probe_environment("grace", 8, probes), probe_environment("grace@y180", 8, probes)
+    rot = Rotation.from_euler("y", 180.0, degrees=True).as_matrix()
+    np.testing.assert_allclose(turned.dirs, plain.dirs @ rot.T, atol=1e-12)
+    np.testing.assert_array_equal(turned.radiance, plain.radiance)
+    tilted = probe_environment("grace@x-45.5", 8, probes)
+    np.testing.assert_allclose(tilted.dirs, plain.dirs @ Rotation.from_euler("x", -45.5, degrees=True).as_matrix().T,
+                               atol=1e-12)
+    brdf = GGX_TRUTH
+    setup = CaseSetup(16, relight_probes=("ennis", "grace@y180"), env_rows=8, probe_dir=probes)
+    truth = render_truth(Material("ggx", brdf=brdf), setup, make_cache(tmp_path))
+    _, reference = truth.relight["grace@y180"]
+    np.testing.assert_allclose(reference, render_groundtruth(brdf, truth.normals, plain.rotated(rot)), rtol=1e-9, atol=1e-12)
+    assert np.abs(reference - truth.scenes[0].radiance).max() > 0.05 * reference.max()
+    with pytest.raises(InputError, match=r"'grace@w90' not found .*NAME@AXISDEGREES"):
+        probe_environment("grace@w90", 8, probes)
+
+
 def test_cache_returns_the_same_array_and_rerenders_a_damaged_file(probes, tmp_path):
     setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, probe_dir=probes)
     material = Material("ggx", brdf=GGX_TRUTH)
@@ -243,15 +268,16 @@ def test_cli_bad_input_exits_2(tmp_path):
     assert proc.returncode == 2 and "1..4 for tilts" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def _case(material: str, model: str, error: float, estimate: float | None = None) -> dict:
+def _case(material: str, model: str, error: float, estimate: float | None = None, turned: float | None = None) -> dict:
+    errors = {"ennis": error} | ({} if turned is None else {"grace@y180": turned})
     return {"material": material, "model": model, "chosen_model": "lobe" if model == "auto" else model, "scenes": 1,
-            "noise": 0.0, "held_out": False, "errors": {"ennis": error}, "fit_seconds": 1.0, "estimate": estimate,
+            "noise": 0.0, "held_out": False, "errors": errors, "fit_seconds": 1.0, "estimate": estimate,
             "failure": None}
 
 
-def _run(cases: list[dict], models: list[str]) -> dict:
+def _run(cases: list[dict], models: list[str], probes: tuple[str, ...] = ("ennis",)) -> dict:
     names = sorted({c["material"] for c in cases})
-    return {"setup": {"size": 16, "fit_probe": "grace", "relight_probes": ["ennis"], "env_rows": 16, "scene_counts": [1],
+    return {"setup": {"size": 16, "fit_probe": "grace", "relight_probes": list(probes), "env_rows": 16, "scene_counts": [1],
                       "noises": [0.0], "models": models},
             "materials": [{"name": n, "path": None, "held_out": False} for n in names], "cases": cases}
 
@@ -276,6 +302,19 @@ def test_summary_counts_picks_only_against_models_that_ran_and_estimates_within_
     assert plot_estimates(both, tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     none = result_from_json(_run([c | {"estimate": None} for c in cases], ["auto", "diffuse"]))
     assert plot_estimates(none, tmp_path / "n.png") is None and not (tmp_path / "n.png").exists()
+
+
+def test_summary_counts_estimates_against_every_relight_probe():
+    """Estimates 1%, 4% and 10% for errors 0.2%, 1% and 6% under ennis (within 2x on the third only) and 1.5%, 2.5%
+    and 21% under grace turned 180 degrees (within 2x on the first two): 1 of 3 and 2 of 3."""
+    from brdfrig.evaluate.measured_report import format_summary, result_from_json, summarize
+
+    cases = [_case("a", "auto", 0.002, 0.01, 0.015), _case("b", "auto", 0.01, 0.04, 0.025),
+             _case("c", "auto", 0.06, 0.10, 0.21)]
+    result = result_from_json(_run(cases, ["auto"], ("ennis", "grace@y180")))
+    row = next(r for r in summarize(result) if r["model"] == "auto")
+    assert (row["estimates_within_2x"], row["estimates_within_2x_under"], row["estimates_reported"]) == (1, {"grace@y180": 2}, 3)
+    assert "estimate within 2x on 1/3 reported, of the error under grace@y180 on 2" in format_summary(result)
 
 
 def test_summary_noise_ratios_and_tables_against_microfacet_per_group():

@@ -501,7 +501,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--size", type=int, default=96, help="sphere image size in pixels (default: %(default)s)")
     g.add_argument("--fit-probe", default="grace", help="probe of the fit (default: %(default)s)")
     g.add_argument("--relight-probes", type=_split, default=["ennis", "pisa"], metavar="NAME,...",
-                   help="probes of the relighting (default: ennis,pisa; the first is the headline)")
+                   help="probes of the relighting (default: ennis,pisa; the first is the headline); NAME@AXISDEGREES "
+                        "turns one (grace@y180: the fit room at an orientation no scene shows)")
     g.add_argument("--env-rows", type=int, default=64, help="lat-long rows of the probes (default: %(default)s)")
     g.add_argument("--measured-dir", type=Path, default=MEASURED_DIR, help="measured materials (default: %(default)s)")
     g.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")

@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import functools
+import re
 from pathlib import Path
 
 import numpy as np
 
 from brdfrig.errors import InputError
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment
 
-__all__ = ["DEFAULT_PROBE_DIR", "box_downsample", "probe_environment"]
+__all__ = ["DEFAULT_PROBE_DIR", "TURNED", "box_downsample", "probe_environment"]
 
 DEFAULT_PROBE_DIR = Path(__file__).resolve().parents[4] / "shared" / "data" / "probes"
 """``../shared/data/probes`` beside the source tree (grace, pisa, ennis: 256x128 Radiance ``.hdr``)."""
@@ -36,13 +38,19 @@ def _probe(path: Path, rows: int) -> Environment:
     return environment_from_latlong(box_downsample(image, rows), name=str(path))
 
 
+#: A probe turned about an axis: ``NAME@AXIS DEGREES`` (``grace@y180``: grace turned 180 degrees about +y).
+TURNED = re.compile(r"^(?P<probe>.+)@(?P<axis>[xyz])(?P<degrees>[-+]?\d+(?:\.\d*)?)$")
+
+
 def probe_environment(probe: str | Path, rows: int = 64, probe_dir: Path = DEFAULT_PROBE_DIR) -> Environment:
-    """Environment of a real probe, box-downsampled to ``2 rows x rows`` (RGB, lat-long map kept).
+    """Environment of a real probe, box-downsampled to ``2 rows x rows`` (RGB, lat-long map kept), optionally turned.
 
     Parameters
     ----------
     probe : str or path
-        A probe name (``"grace"`` -> ``probe_dir/grace.hdr``, else ``.exr``) or a file path.
+        A probe name (``"grace"`` -> ``probe_dir/grace.hdr``, else ``.exr``) or a file path, optionally followed by
+        a turn :data:`TURNED` (``"grace@y180"``: the lighting turned by
+        :func:`brdfrig.fit.rotation.axis_rotation` ``("y", 180)``, the fit room at an orientation no scene shows).
     rows : int
         Lat-long rows after downsampling (must divide the map's height).
     probe_dir : path
@@ -53,10 +61,15 @@ def probe_environment(probe: str | Path, rows: int = 64, probe_dir: Path = DEFAU
     InputError
         If no such probe file exists (the message names where it looked).
     """
+    turn = TURNED.match(str(probe))
+    if turn:
+        env = probe_environment(turn["probe"], rows, probe_dir)
+        return env.rotated(axis_rotation(turn["axis"], float(turn["degrees"])))
     path = Path(probe)
     if not path.suffix:
         candidates = [Path(probe_dir) / f"{probe}{ext}" for ext in (".hdr", ".exr")]
         path = next((p for p in candidates if p.is_file()), candidates[0])
     if not path.is_file():
-        raise InputError(f"light probe {probe!r} not found (looked for {path})")
+        form = " (a turned probe is NAME@AXISDEGREES, e.g. grace@y180)" if "@" in str(probe) else ""
+        raise InputError(f"light probe {probe!r} not found (looked for {path}){form}")
     return _probe(path.resolve(), int(rows))
