@@ -35,6 +35,12 @@ sphere from the elevations the fitted turns did, so leave-one-scene-out alone mi
 from other elevations (twelve turns of grace, relit under ennis: more than 2x low on 25 of 58 measured
 materials, on 3 with the spread added; docs/DESIGN.md, History).  The spread's turned copies include tilts
 about the horizontal axis, which no turn shows; the two errors are taken as independent.
+
+The error they estimate is that under lighting as sharp as the fit's (its turned copies, the other scenes).  A
+smoother room relights with a smaller relative error: four tilted scenes of grace, whose brightest 0.1% of cells
+hold 58% of its power, relight under ennis 5-25x below the estimate and under grace turned 180 degrees within 2x
+of it on 10 of 11 measured materials (docs/DESIGN.md, History).  The one-image calibration
+(:data:`SPREAD_CALIBRATION`) was fitted against errors under ennis.
 """
 
 from __future__ import annotations
