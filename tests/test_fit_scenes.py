@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from brdfrig.fit.analytic import GGX, Lambertian
-from brdfrig.evaluate.bench import rotate_environment
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.models import DiffuseBRDF, FullBRDF, project_to_full
 from brdfrig.fit.scene import Environment, Scene
@@ -53,7 +53,7 @@ def sphere(size: int) -> tuple[np.ndarray, np.ndarray]:
 
 def rotations(env: Environment, count: int) -> list[Environment]:
     """``env`` turned about the vertical axis in 30 degree steps."""
-    return [rotate_environment(env, math.radians(30 * k)) for k in range(count)]
+    return [env.rotated(axis_rotation("y", 30 * k)) for k in range(count)]
 
 
 def make_scenes(brdf, envs, normals, weights, noise: float = 0.0, seed: int = 0) -> list[Scene]:

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from brdfrig.evaluate.bench import rotate_environment
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar
 from brdfrig.fit.brdffile import jsonable, load_brdf, save_brdf
 from brdfrig.fit.fitter import fit_brdf
@@ -31,7 +31,7 @@ def test_loso_picks_the_model_that_relights_where_heldout_pixels_pick_the_wrong_
     fit_env, test_env = probes
     normals, weights = sphere(32)
     truth = GGX(**GGX_MATERIAL)
-    scenes = make_scenes(truth, [fit_env, rotate_environment(fit_env, math.radians(90))], normals, weights)
+    scenes = make_scenes(truth, [fit_env, fit_env.rotated(axis_rotation("y", 90))], normals, weights)
     fits = {m: fit_brdf(scenes, model=m, lmax=3, pmax=3, progress=False, estimate=True) for m in ("lobe", "full")}
     held = {m: r.report.chosen.heldout_relative_rms for m, r in fits.items()}
     loso = {m: r.report.relight.value for m, r in fits.items()}

@@ -66,6 +66,7 @@ from brdfrig.fit.analytic import GGX
 from brdfrig.fit.registry import LINEAR_SH, PRIOR_OF, SOLVERS
 from brdfrig.fit.groundtruth import render_groundtruth
 from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment, Scene
 
 __all__ = [
@@ -79,7 +80,6 @@ __all__ = [
     "QUICK",
     "FULL",
     "plan_cases",
-    "rotate_environment",
     "time_runs",
     "run_benchmark",
     "format_table",
@@ -188,12 +188,6 @@ class BenchResult:
     headline_times: dict[int, tuple[float, ...]] = field(default_factory=dict)
     phases: dict[str, float] = field(default_factory=dict)
     fit_stages: dict[str, float] = field(default_factory=dict)
-
-
-def rotate_environment(env: Environment, angle_rad: float) -> Environment:
-    """The environment turned by ``angle_rad`` about the vertical (+y) axis (right-handed)."""
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    return env.rotated(np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]))
 
 
 def _resample(image_values: np.ndarray, normals: np.ndarray, size: int, new_normals: np.ndarray) -> np.ndarray:
@@ -351,7 +345,7 @@ def _render_truth(fit_env: Environment, test_env: Environment, sphere: SphereGeo
     normals, weights = sphere(config.sphere_size)
     seen = weights > 0
     normals, weights = normals[seen], weights[seen]
-    envs = [rotate_environment(fit_env, math.radians(30 * k)) for k in range(max(config.scene_counts))]
+    envs = [fit_env.rotated(axis_rotation("y", 30 * k)) for k in range(max(config.scene_counts))]
     images = [groundtruth(TRUTH, normals, e) for e in tqdm(envs, desc="ground truth", disable=not progress)]
     return _Truth(normals, weights, envs, images, groundtruth(TRUTH, normals, test_env))
 

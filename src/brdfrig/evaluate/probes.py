@@ -38,7 +38,7 @@ def _probe(path: Path, rows: int) -> Environment:
     return environment_from_latlong(box_downsample(image, rows), name=str(path))
 
 
-#: A probe turned about an axis: ``NAME@AXIS DEGREES`` (``grace@y180``: grace turned 180 degrees about +y).
+#: A probe turned about an axis: ``NAME@AXISDEGREES`` (``grace@y180``: grace turned 180 degrees about +y).
 TURNED = re.compile(r"^(?P<probe>.+)@(?P<axis>[xyz])(?P<degrees>[-+]?\d+(?:\.\d*)?)$")
 
 
