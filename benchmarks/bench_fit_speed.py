@@ -5,7 +5,7 @@ l = p = 4).  The two headline cases (issue 4: a 512x512 three-channel fit of ``f
 the joint solver, twelve scenes <= 5 s, one scene <= 1 s) are built exactly as :func:`brdfrig.evaluate.bench.run_benchmark`
 builds them, with its functions: the GGX sphere :data:`brdfrig.evaluate.bench.TRUTH` rendered by the ground truth at
 :data:`brdfrig.evaluate.bench.FULL`'s ``sphere_size`` under the first real probe turned about the vertical axis in
-30 degree steps (:func:`brdfrig.evaluate.bench.rotate_environment`), resampled onto the headline sphere's pixels
+30 degree steps (:func:`brdfrig.fit.rotation.axis_rotation` about +y), resampled onto the headline sphere's pixels
 (``brdfrig.evaluate.bench._resample``).  Maps and sphere geometry are loaded as ``brdfrig bench`` loads them
 (``brdfrig.cli.bench``, ``brdfrig.hdr.sphere``): imported inside :func:`main` only, this driver is not part of
 ``fit``'s library import graph.
@@ -32,7 +32,8 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from brdfrig.evaluate.bench import FULL, QUICK, TRUTH, _resample, rotate_environment
+from brdfrig.evaluate.bench import FULL, QUICK, TRUTH, _resample
+from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.fitter import DEFAULT_MAX_THETA_DEG, fit_brdf
 from brdfrig.fit.stream import STAGES
 from brdfrig.fit.groundtruth import render_groundtruth
@@ -53,7 +54,7 @@ def headline_scenes(fit_env: Environment, sphere, sphere_size: int, headline_siz
     normals, weights = sphere(sphere_size)
     seen = weights > 0
     normals = normals[seen]
-    envs = [rotate_environment(fit_env, math.radians(30 * k)) for k in range(max(counts))]
+    envs = [fit_env.rotated(axis_rotation("y", 30 * k)) for k in range(max(counts))]
     big_normals, big_weights = sphere(headline_size)
     big = [_resample(render_groundtruth(TRUTH, normals, e), normals, sphere_size, big_normals) for e in envs]
     return {c: [Scene(envs[k], big_normals, big[k], big_weights) for k in range(c)] for c in counts}
