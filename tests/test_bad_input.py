@@ -83,6 +83,16 @@ def _plan(ws: Path, name: str, old: str, new: str) -> None:
     (ws / name).write_text(text.replace(old, new, 1))
 
 
+def _damaged_report(path: Path) -> None:
+    """A diffuse BRDF file whose report holds a one-image estimate and a negative resampled table."""
+    from brdfrig.fit.brdffile import save_brdf
+
+    tables = np.ones((2, 3, 2, 4, 3))
+    tables[1, 0, 0, 2, 1] = -0.5
+    save_brdf(path, _diffuse_brdf(), report={"relight": {"value": 0.05, "method": "rotated-lighting spread", "detail": ""},
+                                             "candidates": {"bivariate+measured": {"fit_report": {"resampled_tables": tables}}}})
+
+
 def build_workspace(ws: Path) -> None:
     """The good inputs the rows misuse (written once, copied for every row)."""
     from brdfrig.fit.brdffile import save_brdf
@@ -196,6 +206,10 @@ ROWS: list[Row] = [
         r"a\.dng is given twice \(also as a\.dng\): a bracket needs distinct frames"),
     Row("same-pixels-twice", "two copies of one frame", ("merge", "a.dng", "a-copy.dng", "-o", "o.exr"),
         r"a-copy\.dng and a\.dng hold identical pixels: the same frame given twice"),
+    Row("render-damaged-report", "render a BRDF file whose resampled tables are negative",
+        ("render", "damaged.json", "--lighting", "env.exr", "--size", "16", "-o", "o.exr"),
+        r"damaged\.json: damaged fit report, no relighting estimate: resampled_tables of bivariate\+measured must be "
+        r"finite non-negative", setup=lambda ws: _damaged_report(ws / "damaged.json")),
     Row("brdf-1e308", "BRDF file with coefficients 1e308",
         ("render", "huge.json", "--lighting", "env.exr", "--size", "16", "-o", "o.exr"),
         r"huge\.json: rendering gives \d+ non-finite value\(s\)"),

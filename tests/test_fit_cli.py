@@ -119,3 +119,29 @@ def test_fit_from_a_mirror_ball_probe(files):
     assert report["relight"]["value"] is None and report["candidates"].keys() == {"diffuse"}  # --no-estimate: no reference fits
     # the ball's rim mask leaves a cone behind it unseen and the map is resampled: a few percent
     np.testing.assert_allclose(brdf.albedo, ALBEDO, rtol=0.05)
+
+
+def test_render_estimates_the_error_for_its_lighting(files, capsys):
+    """A one-image auto fit keeps bivariate+measured's resampled tables; render turns them into an estimate for the
+    lighting it renders under (one that differs between lightings), printed with how it was obtained."""
+    import json
+
+    from brdfrig.fit.bivariate import RESAMPLES
+    from brdfrig.fit.relight import FOR_LIGHTING
+
+    d, _ = files
+    out = d / "auto.brdf.json"
+    assert main(["fit", "--scene", str(d / "grace.exr"), str(d / "sphere.exr"), "--no-progress", "-o", str(out)]) == 0
+    _, report = load_brdf(out)
+    tables = np.asarray(report["candidates"]["bivariate+measured"]["fit_report"]["resampled_tables"])
+    assert tables.shape[:3] == (RESAMPLES, 3, 2) and np.all(tables >= 0)
+    capsys.readouterr()
+    estimates = {}
+    for lighting in ("grace", "pisa"):
+        assert main(["render", str(out), "--lighting", str(d / f"{lighting}.exr"), "--size", "32",
+                     "-o", str(d / f"{lighting}-r.exr"), "--json"]) == 0
+        estimates[lighting] = json.loads(capsys.readouterr().out)["relight_estimate"]
+    assert all(e["method"] == FOR_LIGHTING and 0 < e["value"] < 1 for e in estimates.values()), estimates
+    assert abs(math.log(estimates["grace"]["value"] / estimates["pisa"]["value"])) > 0.01, estimates
+    assert main(["render", str(out), "--lighting", str(d / "pisa.exr"), "--size", "32", "-o", str(d / "p2.exr")]) == 0
+    assert "estimated relighting error under this lighting: " in capsys.readouterr().out

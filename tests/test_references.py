@@ -180,3 +180,63 @@ def test_a_combination_of_references_is_recovered(synthetic_references):
 
     line = next(t for t in format_report(result.report) if t.lstrip().startswith("bivariate+measured"))
     assert "prior: test/rough" in line or "prior: test/grazing" in line, line
+
+
+def _one_scene(size: int = 32):
+    """Scene of the 'rough' + 'grazing' combination (coloured) under a real probe, and a second probe."""
+    from conftest import probe_paths
+
+    from brdfrig.evaluate.probes import box_downsample
+    from brdfrig.fit.groundtruth import render_tabulated
+    from brdfrig.hdr.exr import read_image
+    from brdfrig.lighting import environment_from_latlong
+
+    paths = probe_paths()
+    if not paths:
+        pytest.skip("../shared/data/probes is absent")
+    fit_env, test_env = (environment_from_latlong(box_downsample(np.asarray(read_image(p), dtype=np.float64), 32)) for p in paths[1:3])
+    normals = _sphere_normals(size)
+    truth = _tabulated(lambda th, td: np.array([0.9, 0.5, 0.2]) * _grey(SHAPES["rough"])(th, td) + 0.6 * _grey(SHAPES["grazing"])(th, td))
+    return [Scene(fit_env, normals, render_tabulated(truth, normals, fit_env), np.ones(len(normals)))], test_env
+
+
+def test_resampled_references(synthetic_references):
+    """Tables re-solved on bootstrap resamples of the references: with one reference every resample draws it alone,
+    so each is the fitted table itself; with four they are non-negative tables on the fit's grid that differ."""
+    scenes, test_env = _one_scene()
+    single = synthetic_references.without(["test/matte", "test/glossy", "test/metal", "test/grazing"])
+    brdf, report = fit_bivariate(scenes, references=single, resamples=2, progress=False, max_pixels=600)
+    tables = report["resampled_tables"]
+    assert tables.shape == (2, 3, 2, *SHIPPED_GRID)
+    np.testing.assert_allclose(tables[:, :, 0], np.broadcast_to(brdf.table, tables[:, :, 0].shape), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(tables[:, :, 1], np.broadcast_to(brdf.cross, tables[:, :, 1].shape), rtol=1e-9, atol=1e-12)
+    _, report = fit_bivariate(scenes, references=synthetic_references, resamples=3, progress=False, max_pixels=600)
+    tables = report["resampled_tables"]
+    assert tables.shape == (3, 3, 2, *SHIPPED_GRID) and np.all(np.isfinite(tables)) and np.all(tables >= 0)
+    assert np.ptp(tables, axis=0).max() > 1e-3 * tables.max()
+    _, plain = fit_bivariate(scenes, references=synthetic_references, progress=False, max_pixels=600)
+    assert "resampled_tables" not in plain
+
+
+def test_lighting_estimate_is_the_geometric_mean_of_the_estimate_and_the_spread(synthetic_references):
+    """Resampled tables (1 - d) T and (1 + d) T predict (1 -/+ d) times one radiance under any lighting: their
+    relative spread is d, so the estimate for a lighting is sqrt(e k d) (closed form); without tables the report's
+    own estimate; damaged tables are refused."""
+    from brdfrig.fit.relight import FOR_LIGHTING, RESAMPLE_CALIBRATION, lighting_estimate
+
+    scenes, test_env = _one_scene(24)
+    table = np.moveaxis(synthetic_references.tables[1], 0, 1)  # (C, 2, nh, nd) of 'rough'
+    d, e = 0.07, 0.04
+    pair = np.stack([table * (1 + s) for s in (-d, d)])  # (2, C, 2, nh, nd)
+    standing = {"value": e, "method": "rotated-lighting spread", "detail": "test"}
+    report = {"relight": standing, "candidates": {"bivariate+measured": {"fit_report": {"resampled_tables": pair.tolist()}}}}
+    for env in (scenes[0].env, test_env):
+        est = lighting_estimate(report, env, scenes[0].normals, scenes[0].weights)
+        assert est.method == FOR_LIGHTING
+        assert est.value == pytest.approx(math.sqrt(e * RESAMPLE_CALIBRATION * d), rel=1e-9)
+    same = lighting_estimate({"relight": standing, "candidates": {}}, test_env, scenes[0].normals, scenes[0].weights)
+    assert (same.value, same.method) == (e, standing["method"])
+    pair[1, 0, 0, 3, 2] = np.nan
+    report["candidates"]["bivariate+measured"]["fit_report"]["resampled_tables"] = pair
+    with pytest.raises(ValueError, match="finite non-negative"):
+        lighting_estimate(report, test_env, scenes[0].normals, scenes[0].weights)

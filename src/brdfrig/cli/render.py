@@ -7,6 +7,10 @@ with the map's cells near each pixel's mirror direction subdivided (sharp lobes)
 The sphere is centred in an N x N image with radius N/2 pixels, seen
 orthographically from `v = (0, 0, 1)` (MATH.md); pixels outside it are 0.
 Written as a linear float32 EXR, atomically.
+
+For a fitted BRDF file the fit's relighting error is estimated for this lighting
+(one-image fits: from how much the fit's tables, re-solved on resampled reference
+materials, disagree under it) and printed with how it was obtained.
 """
 
 from __future__ import annotations
@@ -52,23 +56,26 @@ def _radiance(pred, brdf_path):
 
 
 def run(args) -> int:
+    from dataclasses import asdict
+    from pathlib import Path
+
     import numpy as np
 
     from brdfrig.errors import InputError
-    from pathlib import Path
-
     from brdfrig.fit.brdffile import load_brdf
     from brdfrig.fit.measured import load_measured
+    from brdfrig.fit.relight import lighting_estimate
     from brdfrig.hdr.exr import write_exr
     from brdfrig.hdr.sphere import sphere_pixels
     from brdfrig.lighting import read_latlong
 
     out = check_output(args.output, [args.brdf, args.lighting], suffixes=(".exr",), writes="a linear OpenEXR image",
                        no_clobber=args.no_clobber)
+    report = None
     if Path(args.brdf).suffix in (".h5", ".binary"):
         brdf = load_measured(args.brdf)
     else:
-        brdf, _ = load_brdf(args.brdf)
+        brdf, report = load_brdf(args.brdf)
     env = read_latlong(args.lighting, getattr(brdf, "lmax", 0))
     if env.channels != brdf.channels and brdf.channels != 1:
         raise InputError(f"{args.lighting}: lighting has {env.channels} channel(s), the BRDF {brdf.channels}")
@@ -77,9 +84,17 @@ def run(args) -> int:
     image = np.zeros((n, n, env.channels), dtype=np.float32)
     image[px.rows, px.cols] = _radiance(brdf.predict(env, px.normals), args.brdf)
     provenance = {"brdf": str(Path(args.brdf).resolve()), "lighting": str(Path(args.lighting).resolve())}
+    try:
+        estimate = None if report is None else lighting_estimate(report, env, px.normals, px.weights)
+    except (ValueError, TypeError, KeyError) as exc:
+        raise InputError(f"{args.brdf}: damaged fit report, no relighting estimate: {exc}; nothing written") from exc
     write_exr(out, image, attributes=provenance, overwrite=not args.no_clobber)
     if args.json:
-        print_json({"output": str(Path(out).resolve()), **provenance, "size": n, "channels": env.channels})
+        print_json({"output": str(Path(out).resolve()), **provenance, "size": n, "channels": env.channels,
+                    "relight_estimate": None if estimate is None else asdict(estimate)})
     else:
         print(f"wrote {out}")
+        if estimate is not None and estimate.value is not None:
+            print(f"estimated relighting error under this lighting: {100 * estimate.value:.2g}% ({estimate.method}: "
+                  f"{estimate.detail})")
     return 0

@@ -312,6 +312,9 @@ class CaseResult:
     held_out : bool
     estimate_method : str
         How the fitter obtained ``estimate``.
+    lighting_estimates : dict
+        Relight probe -> the fitter's estimate for that lighting (:func:`brdfrig.fit.relight.lighting_estimate`;
+        ``auto`` only).
     cpu_seconds : float or None
         Process CPU time of the fit (all threads; less sensitive to other jobs than the wall clock).
     failure : str or None
@@ -330,6 +333,7 @@ class CaseResult:
     estimate: float | None
     held_out: bool
     estimate_method: str = ""
+    lighting_estimates: dict[str, float | None] = field(default_factory=dict)
     cpu_seconds: float | None = None
     failure: str | None = None
     relit: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
@@ -338,6 +342,12 @@ class CaseResult:
     def error(self) -> float:
         """Error under the first relight probe (the headline number)."""
         return next(iter(self.errors.values()))
+
+    def estimate_for(self, probe: str | None = None) -> float | None:
+        """The estimate for relight probe ``probe`` (None: the headline one): its lighting estimate where there is
+        one, else ``estimate``."""
+        value = self.lighting_estimates.get(next(iter(self.errors)) if probe is None else probe)
+        return self.estimate if value is None else value
 
 
 def reported_estimate(report: dict) -> tuple[float | None, str]:
@@ -375,6 +385,13 @@ def _relight(truth: Truth, brdfs: dict) -> dict[str, tuple[dict[str, float], dic
     return out
 
 
+def _lighting_estimates(truth: Truth, report: dict) -> dict[str, float | None]:
+    """Relight probe -> :func:`brdfrig.fit.relight.lighting_estimate` of the fit under it."""
+    from brdfrig.fit.relight import lighting_estimate
+
+    return {probe: lighting_estimate(report, env, truth.normals, truth.weights).value for probe, (env, _) in truth.relight.items()}
+
+
 def _default_fit(scenes, model, material: str):
     """:func:`brdfrig.fit.fitter.fit_brdf` without progress bars, the material left out of the reference tables."""
     from brdfrig.fit.fitter import fit_brdf
@@ -404,7 +421,8 @@ def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int =
     estimate, method = reported_estimate(report)
     return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
                       float(noise), errors, seconds, estimate, truth.material.held_out,
-                      estimate_method=method, cpu_seconds=cpu, relit=relit)
+                      estimate_method=method, lighting_estimates=_lighting_estimates(truth, report), cpu_seconds=cpu,
+                      relit=relit)
 
 
 def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int = 0) -> list[CaseResult]:
@@ -426,7 +444,8 @@ def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int =
         errors, relit = relights[chosen]
         mat = truth.material
         out["auto"] = CaseResult(mat.name, "auto", report["chosen_model"], truth.setup.scenes, float(noise), errors,
-                                 seconds, estimate, mat.held_out, estimate_method=method, cpu_seconds=cpu, relit=relit)
+                                 seconds, estimate, mat.held_out, estimate_method=method,
+                                 lighting_estimates=_lighting_estimates(truth, report), cpu_seconds=cpu, relit=relit)
         for name in brdfs:
             cand = report["candidates"].get(name, {})
             estimate, method = reported_estimate(cand)

@@ -144,7 +144,8 @@ def _estimate_within(case, probe: str | None = None) -> bool:
     """The case's reported estimate is within :data:`ESTIMATE_FACTOR` of its measured error under ``probe``
     (None: the headline probe)."""
     error = case.error if probe is None else case.errors.get(probe, math.nan)
-    ratio = case.estimate / error if error > 0 else (1.0 if case.estimate == 0 else math.inf)
+    estimate = case.estimate_for(probe)
+    ratio = estimate / error if error > 0 else (1.0 if estimate == 0 else math.inf)
     return 1 / ESTIMATE_FACTOR <= ratio <= ESTIMATE_FACTOR
 
 
@@ -197,7 +198,7 @@ def format_table(result: MeasuredResult) -> str:
             held = next(iter(by_model.values())).held_out
             cells = " ".join(f"{_cell(by_model.get(m)):>10}" for m in result.models)
             auto = by_model.get(AUTO)
-            tail = "" if auto is None else f"  {auto.chosen_model[:11]:<11} {_pct(auto.estimate)}"
+            tail = "" if auto is None else f"  {auto.chosen_model[:11]:<11} {_pct(auto.estimate_for())}"
             lines.append(f"{name + ('*' if held else ''):<{width}} {cells}{tail}")
     return "\n".join(lines)
 
@@ -281,7 +282,8 @@ def result_to_json(result: MeasuredResult) -> dict:
     s = result.setup
     cases = [{"material": c.material, "model": c.model, "chosen_model": c.chosen_model, "scenes": c.scenes,
               "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds, "cpu_seconds": c.cpu_seconds,
-              "estimate": c.estimate, "estimate_method": c.estimate_method, "failure": c.failure} for c in result.cases]
+              "estimate": c.estimate, "estimate_method": c.estimate_method, "lighting_estimates": c.lighting_estimates,
+              "failure": c.failure} for c in result.cases]
     return {"setup": setup_to_json(s, result.scene_counts, result.noises, result.models, result.seed),
             "materials": [{"name": m.name, "path": str(m.path) if m.path else None, "held_out": m.held_out}
                           for m in result.materials],
@@ -301,7 +303,8 @@ def result_from_json(data: dict) -> MeasuredResult:
     cases = [CaseResult(c["material"], c["model"], c["chosen_model"], c["scenes"], c["noise"],
                         {k: (math.nan if v is None else v) for k, v in c["errors"].items()},
                         math.nan if c["fit_seconds"] is None else c["fit_seconds"], c["estimate"], c["held_out"],
-                        estimate_method=c.get("estimate_method", ""), cpu_seconds=c.get("cpu_seconds"),
+                        estimate_method=c.get("estimate_method", ""), lighting_estimates=c.get("lighting_estimates", {}),
+                        cpu_seconds=c.get("cpu_seconds"),
                         failure=c.get("failure")) for c in data["cases"]]
     done = {c.material for c in cases}
     materials = [Material(m["name"], None, None, m["held_out"]) for m in data["materials"] if m["name"] in done]
@@ -387,7 +390,7 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
 
     from brdfrig.report.figures import save_png
 
-    cases = [c for c in result.cases if c.model == AUTO and not c.failure and c.estimate and c.error > 0]
+    cases = [c for c in result.cases if c.model == AUTO and not c.failure and c.estimate_for() and c.error > 0]
     if not cases:
         return None
     fig, ax = plt.subplots(figsize=(5.2, 5.0))
@@ -395,18 +398,18 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
         group = [c for c in cases if (c.scenes, c.noise) == (scenes, noise)]
         inside = sum(_estimate_within(c) for c in group)
         for held, fill in ((False, "none"), (True, None)):
-            pts = [(c.error, c.estimate) for c in group if c.held_out == held]
+            pts = [(c.error, c.estimate_for()) for c in group if c.held_out == held]
             if pts:
                 x, y = np.array(pts).T
                 ax.plot(x, y, "os^D"[k % 4], color=f"C{k}", mfc=fill, ms=5, label=f"{scene_label(scenes, result.setup.arrangement)}, noise {noise:g}"
                         + (f": {inside}/{len(group)} within {ESTIMATE_FACTOR:g}x" if not held else " (held out)"))
-    lo = 0.5 * min(min(c.error, c.estimate) for c in cases)
-    hi = 2.0 * max(max(c.error, c.estimate) for c in cases)
+    lo = 0.5 * min(min(c.error, c.estimate_for()) for c in cases)
+    hi = 2.0 * max(max(c.error, c.estimate_for()) for c in cases)
     line = np.array([lo, hi])
     ax.plot(line, line, "k-", lw=0.8)
     ax.fill_between(line, line / ESTIMATE_FACTOR, line * ESTIMATE_FACTOR, color="0.85", zorder=0)
     ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel=f"measured relighting error ({result.setup.relight_probes[0]})",
-           ylabel="reported estimate", title=f"auto: estimate vs measured (band: within {ESTIMATE_FACTOR:g}x)")
+           ylabel="reported estimate for that lighting", title=f"auto: estimate vs measured (band: within {ESTIMATE_FACTOR:g}x)")
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         axis.set_major_formatter(PercentFormatter(1.0, decimals=0))

@@ -18,7 +18,9 @@ Pipeline (``docs/MATH.md``):
    (:mod:`brdfrig.fit.blend`) is then weighted by their one-image estimates, or stacked on their
    leave-one-scene-out predictions.  ``auto`` (and the blend) compare candidates (weigh the tables) on
    interleaved folds and, with more scenes than folds, report the chosen fit's estimate from folds of
-   consecutive scenes (``"arcs"``); another requested model's estimate is the arcs'.
+   consecutive scenes (``"arcs"``); another requested model's estimate is the arcs'.  One-image fits also
+   keep ``bivariate+measured``'s tables re-solved on resampled references (its report's ``resampled_tables``):
+   :func:`brdfrig.fit.relight.lighting_estimate` turns them into an estimate for a given lighting.
 6. Judgement and choice (:mod:`brdfrig.fit.select`): determinacy, finite non-negative predicted
    radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against a
    flexible table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), else takes the
@@ -37,6 +39,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from brdfrig.errors import InputError
+from brdfrig.fit.bivariate import RESAMPLES
 from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms
@@ -96,9 +99,11 @@ class _Candidates:
     """Fits candidates on one :class:`~brdfrig.fit.stream.FitData`, one pixel stream per model spec."""
 
     def __init__(self, data: FitData, ident: Identifiability, lmax: int, pmax: int, solver: str, required: str | None = None,
-                 reference_tables=None, prior_family: str | None = None, judged: tuple[str, ...] | None = None) -> None:
+                 reference_tables=None, prior_family: str | None = None, judged: tuple[str, ...] | None = None,
+                 resamples: int = 0) -> None:
         """``required``: the model asked for (its fit errors propagate; another candidate's failure only skips it);
         ``reference_tables``: those of ``bivariate+measured`` (None: :func:`brdfrig.fit.references.shipped`);
+        ``resamples``: its bootstrap resamples of the references (:func:`brdfrig.fit.bivariate.fit_bivariate`);
         ``prior_family``: the parametric family to try first as a table's prior (:meth:`_parametric_prior`);
         ``judged``: the single-model fits whose held-out pixels are predicted (None: all; a fold's refits need only
         the parametric families', to choose a prior)."""
@@ -107,6 +112,7 @@ class _Candidates:
         self.reference_tables = reference_tables
         self.prior_family = prior_family
         self.judged = judged
+        self.resamples = resamples
         self.bands = tuple(ident.observable_bands)
         self.streams: dict[ModelSpec, Stream] = {}
         self.brdfs: dict[str, FittedBRDF] = {}
@@ -181,6 +187,7 @@ class _Candidates:
         extra = {} if prior is None else {"prior": self.brdfs[prior]}
         if REGISTRY[name].prior_references:
             extra["references"] = self.reference_tables if self.reference_tables is not None else shipped()
+            extra["resamples"] = self.resamples
         brdf, rep = single_fit(name)(data.train_scenes(), lmax=self.lmax, bands=self.bands, progress=data.progress, **extra)
         self.brdfs[name] = brdf
         held_err, check = self._held_out(name, brdf) if self.judged is None or name in self.judged else (None, None)
@@ -344,7 +351,8 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
         raise InputError("the lighting has no energy in any band: nothing can be measured")
 
     full_lmax = lmax if model != "auto" else min(lmax, ident.full_lmax_determined)
-    fitter = _Candidates(data, ident, lmax, pmax, solver, None if model == "auto" else model, reference_tables)
+    fitter = _Candidates(data, ident, lmax, pmax, solver, None if model == "auto" else model, reference_tables,
+                         resamples=RESAMPLES if estimate and len(scenes) == 1 else 0)
     for name in wanted:
         if name != BLEND:
             fitter.fit(name, full_lmax, model == "auto")

@@ -255,6 +255,9 @@ def format_report(report: FitReport) -> list[str]:
     rel = report.relight
     if rel is not None and rel.value is not None:
         lines.append(f"estimated relighting error under other lighting: {_pct(rel.value)} ({rel.method}: {rel.detail})")
+        table = report.candidates.get("bivariate+measured")
+        if table is not None and "resampled_tables" in (table.fit_report or {}):
+            lines.append("  for a given lighting, 'brdfrig render --lighting' estimates it from the references' resampled tables")
     else:
         lines.append(f"estimated relighting error under other lighting: none ({rel.detail if rel else 'not estimated'})")
     return lines
