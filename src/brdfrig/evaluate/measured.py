@@ -313,8 +313,8 @@ class CaseResult:
     estimate_method : str
         How the fitter obtained ``estimate``.
     lighting_estimates : dict
-        Relight probe -> the fitter's estimate for that lighting (:func:`brdfrig.fit.relight.lighting_estimate`;
-        ``auto`` only).
+        Relight probe -> the fitter's estimate for that lighting (:func:`brdfrig.fit.relight.lighting_estimate`
+        of the fit's report); empty for a model relit from ``auto``'s candidates.
     cpu_seconds : float or None
         Process CPU time of the fit (all threads; less sensitive to other jobs than the wall clock).
     failure : str or None
