@@ -317,6 +317,23 @@ def test_summary_counts_estimates_against_every_relight_probe():
     assert "estimate within 2x on 1/3 reported, of the error under grace@y180 on 2" in format_summary(result)
 
 
+def test_an_estimate_for_the_probe_counts_in_place_of_the_fit_estimate():
+    """The same three materials with estimates for each lighting: ennis 0.3%, 2%, 5% (within 2x of 0.2%, 1%, 6% on
+    all three; the fit's own estimate on one) and grace turned 5%, 2.5%, 9% (of 1.5%, 2.5%, 21%: the second only).
+    The JSON round trip keeps them."""
+    from brdfrig.evaluate.measured_report import result_from_json, result_to_json, summarize
+
+    lit = {"a": (0.003, 0.05), "b": (0.02, 0.025), "c": (0.05, 0.09)}
+    cases = [_case("a", "auto", 0.002, 0.01, 0.015), _case("b", "auto", 0.01, 0.04, 0.025),
+             _case("c", "auto", 0.06, 0.10, 0.21)]
+    cases = [c | {"lighting_estimates": dict(zip(("ennis", "grace@y180"), lit[c["material"]]))} for c in cases]
+    result = result_from_json(_run(cases, ["auto"], ("ennis", "grace@y180")))
+    row = next(r for r in summarize(result) if r["model"] == "auto")
+    assert (row["estimates_within_2x"], row["estimates_within_2x_under"]) == (3, {"grace@y180": 1})
+    again = result_from_json(result_to_json(result))
+    assert [c.lighting_estimates for c in again.cases] == [c["lighting_estimates"] for c in cases]
+
+
 def test_summary_noise_ratios_and_tables_against_microfacet_per_group():
     """Noise: auto's errors 2/4/10% noise-free and 2.2/4/13% with 1% noise on the same three materials: median
     ratio 4/4 = 1x, worst 13/10 = 1.3x, per material 1.1x, 1x, 1.3x (median 1.1x), only the third over 1.2x.

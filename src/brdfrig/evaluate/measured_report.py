@@ -379,9 +379,9 @@ def plot_errors(result: MeasuredResult, path: Path) -> Path:
 
 
 def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
-    """PNG: ``auto``'s reported relighting estimate against its measured relighting error (headline probe),
-    log-log, one marker per (scenes, noise), the held-out materials filled; the line of equality and the
-    :data:`ESTIMATE_FACTOR` band.  None when no ``auto`` case reported an estimate."""
+    """PNG: ``auto``'s reported relighting estimate for each relight probe against its measured relighting error
+    there, log-log, one colour per (scenes, noise), one marker per probe, the held-out materials filled; the line
+    of equality and the :data:`ESTIMATE_FACTOR` band.  None when no ``auto`` case reported an estimate."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -390,25 +390,30 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
 
     from brdfrig.report.figures import save_png
 
-    cases = [c for c in result.cases if c.model == AUTO and not c.failure and c.estimate_for() and c.error > 0]
-    if not cases:
+    probes = result.setup.relight_probes
+    cases = [c for c in result.cases if c.model == AUTO and not c.failure]
+    points = [(c, p, c.errors[p], c.estimate_for(p)) for c in cases for p in probes
+              if c.estimate_for(p) and c.errors.get(p, 0) > 0]
+    if not points:
         return None
     fig, ax = plt.subplots(figsize=(5.2, 5.0))
-    for k, (scenes, noise) in enumerate(sorted({(c.scenes, c.noise) for c in cases})):
-        group = [c for c in cases if (c.scenes, c.noise) == (scenes, noise)]
-        inside = sum(_estimate_within(c) for c in group)
-        for held, fill in ((False, "none"), (True, None)):
-            pts = [(c.error, c.estimate_for()) for c in group if c.held_out == held]
-            if pts:
-                x, y = np.array(pts).T
-                ax.plot(x, y, "os^D"[k % 4], color=f"C{k}", mfc=fill, ms=5, label=f"{scene_label(scenes, result.setup.arrangement)}, noise {noise:g}"
-                        + (f": {inside}/{len(group)} within {ESTIMATE_FACTOR:g}x" if not held else " (held out)"))
-    lo = 0.5 * min(min(c.error, c.estimate_for()) for c in cases)
-    hi = 2.0 * max(max(c.error, c.estimate_for()) for c in cases)
+    for k, (scenes, noise) in enumerate(sorted({(c.scenes, c.noise) for c, *_ in points})):
+        for j, probe in enumerate(probes):
+            group = [(c, x, y) for c, p, x, y in points if (c.scenes, c.noise) == (scenes, noise) and p == probe]
+            inside = sum(_estimate_within(c, probe) for c, _, _ in group)
+            for held, fill in ((False, "none"), (True, None)):
+                pts = [(x, y) for c, x, y in group if c.held_out == held]
+                if pts:
+                    x, y = np.array(pts).T
+                    label = (f"{scene_label(scenes, result.setup.arrangement)}, noise {noise:g}, {probe}: "
+                             f"{inside}/{len(group)} within {ESTIMATE_FACTOR:g}x") if not held else f"{probe}, held out"
+                    ax.plot(x, y, "os^D"[j % 4], color=f"C{k}", mfc=fill, ms=5, label=label)
+    lo = 0.5 * min(min(x, y) for *_, x, y in points)
+    hi = 2.0 * max(max(x, y) for *_, x, y in points)
     line = np.array([lo, hi])
     ax.plot(line, line, "k-", lw=0.8)
     ax.fill_between(line, line / ESTIMATE_FACTOR, line * ESTIMATE_FACTOR, color="0.85", zorder=0)
-    ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel=f"measured relighting error ({result.setup.relight_probes[0]})",
+    ax.set(xscale="log", yscale="log", xlim=(lo, hi), ylim=(lo, hi), xlabel="measured relighting error under the probe",
            ylabel="reported estimate for that lighting", title=f"auto: estimate vs measured (band: within {ESTIMATE_FACTOR:g}x)")
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
