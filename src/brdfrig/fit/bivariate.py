@@ -30,7 +30,8 @@ along both grid axes (in node index: the sqrt spacing lets a sharp peak stay smo
 (:data:`PHI_SMOOTHING`), and a ridge on that term (:data:`PHI_RIDGE`; :data:`PHI_PIN` where ``theta_h`` or
 ``theta_d`` is 0 and ``phi_d`` is undefined).  Monotone decrease in ``theta_h`` is a reparametrisation,
 ``p[a, b] = sum_{a' >= a} z[a', b]`` with ``z >= 0`` (non-negative decrements: non-negativity follows;
-``q`` likewise), solved by NNLS on the Cholesky factor of the regularised normal matrix.
+``q`` likewise), solved as non-negative least squares on the regularised normal equations
+(:func:`brdfrig.fit.lsq.nnls_normal`).
 
 Why the ``phi_d`` term: a ``phi_d``-free table cannot reproduce the parts of a real material's image that
 depend on ``phi_d`` (grazing light across the plane of incidence); fitted to them, it bends its peak rows
@@ -78,11 +79,11 @@ import time
 
 import numba
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.optimize import nnls
+from scipy.linalg import cho_factor, cho_solve
 from tqdm import tqdm
 
 from brdfrig.fit.brdf import register_model
+from brdfrig.fit.lsq import nnls_normal
 from brdfrig.fit.measured import _local_angles_to_dirs, rusinkiewicz_coordinates, rusinkiewicz_directions
 from brdfrig.fit.microfacet import _check_scenes, _subsample
 from brdfrig.fit.quadrature import LobeQuadrature, lobe_quadrature, lobe_samples
@@ -469,15 +470,12 @@ class _Channel:
         return cho_solve(cho_factor(self.hessian(lam_rel)), self.rhs(lam_rel))
 
     def constrained(self, lam_rel: float, transform: np.ndarray | None) -> np.ndarray:
-        """Node values minimising the regularised objective with ``x = T z, z >= 0`` (``transform`` T; None: ``x >= 0``).
-
-        NNLS on the Cholesky factor: ``x^T H x - 2 b^T x = ||L^T x - L^-1 b||^2 - const``.
-        """
-        low = np.linalg.cholesky(self.hessian(lam_rel))
-        rhs = solve_triangular(low, self.rhs(lam_rel), lower=True)
-        mat = low.T if transform is None else low.T @ transform
-        sol, _ = nnls(mat, rhs, maxiter=50 * len(rhs))
-        return sol if transform is None else transform @ sol
+        """Node values minimising the regularised objective with ``x = T z, z >= 0`` (``transform`` T; None: ``x >= 0``):
+        :func:`~brdfrig.fit.lsq.nnls_normal` of ``T^T H T z = T^T b``."""
+        hess, rhs = self.hessian(lam_rel), self.rhs(lam_rel)
+        if transform is None:
+            return nnls_normal(hess, rhs)
+        return transform @ nnls_normal(transform.T @ hess @ transform, transform.T @ rhs)
 
     def residual(self, x: np.ndarray) -> float:
         """Weighted squared residual of ``x`` on the fit pixels."""
@@ -613,10 +611,10 @@ def _reference_prior(ch: _Channel, columns: np.ndarray) -> tuple[np.ndarray, flo
     """The non-negative combination of reference ``columns`` (2K, M) that best reproduces one channel's pixels.
 
     Each column is scaled to unit rendered energy (``c^T G c = 1``; columns the pixels do not see are
-    dropped), the weights ``w >= 0`` minimise ``||R (C w) - Q^T y||^2 + mu ||w||^2`` (NNLS on the Cholesky
-    factor), and the check pixels choose ``mu`` from :data:`REFERENCE_RIDGE_GRID`.  Returns the prior's
-    node values (2K,), ``mu`` and the weights (M,) of the unit-energy columns (each column's share of the
-    prior's rendered image; 0 for unseen columns).
+    dropped), the weights ``w >= 0`` minimise ``||R (C w) - Q^T y||^2 + mu ||w||^2``
+    (:func:`~brdfrig.fit.lsq.nnls_normal` on the normal equations), and the check pixels choose ``mu`` from
+    :data:`REFERENCE_RIDGE_GRID`.  Returns the prior's node values (2K,), ``mu`` and the weights (M,) of the
+    unit-energy columns (each column's share of the prior's rendered image; 0 for unseen columns).
     """
     energy = np.sqrt(np.maximum(np.einsum("km,km->m", ch.g_mat @ columns, columns), 0.0))
     seen = energy > 1e-12 * max(float(energy.max()), 1e-300)
@@ -624,8 +622,7 @@ def _reference_prior(ch: _Channel, columns: np.ndarray) -> tuple[np.ndarray, flo
     gram, rhs0 = unit.T @ ch.g_mat @ unit, unit.T @ ch.g
     best = None
     for mu in REFERENCE_RIDGE_GRID:
-        low = np.linalg.cholesky(gram + mu * np.eye(len(rhs0)))
-        w, _ = nnls(low.T, solve_triangular(low, rhs0, lower=True), maxiter=50 * len(rhs0))
+        w = nnls_normal(gram + mu * np.eye(len(rhs0)), rhs0)
         x = unit @ w
         err = ch.check_error(x) if len(ch.check_y) else 0.0
         if best is None or err < best[0]:

@@ -1,12 +1,16 @@
-"""Small constrained linear least-squares solves: the closed-form inner step of the variable-projection fits.
+"""Constrained linear least-squares solves.
 
-Both reduce a tall problem ``min |A x - b|`` (A: M x K, K small) to its K x K triangle first (QR: the same
-minimiser, residual recovered exactly).
+The first two are the closed-form inner step of the variable-projection fits; they reduce a tall problem
+``min |A x - b|`` (A: M x K, K small) to its K x K triangle first (QR: the same minimiser, residual recovered
+exactly).
 
 - :func:`box_lsq`: ``lower <= x <= upper`` (bounded-variable least squares, scipy's BVLS);
 - :func:`polytope_lsq`: ``G x <= h`` for a handful of constraints, exactly, by trying every active set
   of at most K constraints (the optimum is the best feasible equality-constrained minimiser of one of
   them when ``A`` has full column rank).
+
+- :func:`nnls_normal`: ``x >= 0`` for a problem given by its normal equations ``H x = b`` (the bivariate
+  table's hundreds of node values), by block principal pivoting.
 """
 
 from __future__ import annotations
@@ -14,9 +18,14 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear
 
-__all__ = ["box_lsq", "polytope_lsq"]
+__all__ = ["box_lsq", "polytope_lsq", "nnls_normal", "NNLS_RTOL"]
+
+NNLS_RTOL = 1e-12
+"""A held unknown may have a gradient down to ``-NNLS_RTOL max |b|`` (:func:`nnls_normal`; scipy's ``nnls`` reaches
+about 1e-12 on the bivariate table's problems)."""
 
 
 def _triangle(cols: np.ndarray, target: np.ndarray):
@@ -79,3 +88,50 @@ def polytope_lsq(cols: np.ndarray, target: np.ndarray, g: np.ndarray, h: np.ndar
                     best = (r2, sol)
     x = best[1] / scale
     return float(np.sum((cols @ x - target) ** 2)), x
+
+
+def nnls_normal(h: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``argmin x^T H x - 2 b^T x`` subject to ``x >= 0``, ``H`` (K, K) symmetric positive definite, ``b`` (K,).
+
+    Block principal pivoting (Portugal, Judice & Vicente 1994; Kim & Park 2011): the unknowns are split into a
+    free set, solved from ``H_FF x_F = b_F``, and a set held at 0; every free unknown that comes out negative and
+    every held one whose gradient ``(H x - b)_j`` is below ``-NNLS_RTOL max |b|`` changes sides at once, until
+    none does (the optimality conditions).  When a swap of all of them fails to
+    shrink the count of violations three times running, only the violating unknown of largest index changes
+    sides (Murty's rule, which terminates).  It starts from all unknowns free (the unconstrained minimiser) and
+    takes a median of 5 (rgl/satin_purple) to 12 (rgl/cc_amber_citrine) Cholesky solves of the free block on the
+    bivariate table's 768-unknown problems, where scipy's Lawson-Hanson ``nnls`` adds one unknown per step.
+
+    Returns
+    -------
+    x : (K,) float64
+        The minimiser, >= 0.
+
+    Raises
+    ------
+    RuntimeError
+        No convergence in ``10 K + 100`` steps (a bug: the rule above terminates).
+    """
+    h = np.asarray(h, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    k = len(b)
+    free = np.ones(k, dtype=bool)
+    best, tries = k + 1, 3
+    b_tol = NNLS_RTOL * max(float(np.abs(b).max(initial=0.0)), 1e-300)
+    for _ in range(10 * k + 100):
+        x = np.zeros(k)
+        if free.any():
+            x[free] = cho_solve(cho_factor(h[np.ix_(free, free)]), b[free])
+        grad = h @ x - b
+        bad = (free & (x < 0.0)) | (~free & (grad < -b_tol))
+        count = int(bad.sum())
+        if count == 0:
+            return x
+        if count < best:
+            best, tries = count, 3
+        elif tries > 0:
+            tries -= 1
+        else:
+            bad = np.arange(k) == np.flatnonzero(bad).max()
+        free ^= bad
+    raise RuntimeError(f"block principal pivoting did not converge on a {k}-unknown problem")
