@@ -57,3 +57,31 @@ def test_unconstrained_interior_and_all_bound():
     x0 = rng.uniform(0.1, 1.0, 20)
     np.testing.assert_allclose(nnls_normal(h, h @ x0), x0, rtol=1e-10)
     assert np.array_equal(nnls_normal(h, -rng.uniform(0.0, 1.0, 20)), np.zeros(20))
+
+
+def _collinear_positive(seed: int):
+    """150 unit columns mixed from 6 non-negative profiles plus 0.1% noise (like the reference prior's tables):
+    nearly collinear, with fewer than half the unknowns free at the solution."""
+    rng = np.random.default_rng(seed)
+    base = np.abs(rng.standard_normal((400, 6)))
+    a = base @ rng.uniform(0.0, 1.0, (6, 150)) + 0.001 * np.abs(rng.standard_normal((400, 150)))
+    a /= np.linalg.norm(a, axis=0)
+    gram = a.T @ a + 1e-6 * np.eye(150)
+    return a, base @ rng.uniform(0.0, 1.0, 6), gram
+
+
+@pytest.mark.parametrize("seed,cycles", [(4, True), (1, False)])
+def test_cycling_pivots_hand_over_to_scipy(seed, cycles, monkeypatch):
+    """On nearly collinear columns the pivoting can cycle (seed 4 takes more than NNLS_MAX_SOLVES solves, seed 1
+    a handful): then scipy's ``nnls`` solves it; either way the minimiser of the ridge problem, checked against
+    scipy on the stacked matrix ``[A; sqrt(1e-6) I]`` (atol 1e-6 of the largest value)."""
+    import brdfrig.fit.lsq as lsq
+
+    calls = []
+    monkeypatch.setattr(lsq, "nnls", lambda *args, **kw: calls.append(1) or nnls(*args, **kw))
+    a, y, gram = _collinear_positive(seed)
+    got = lsq.nnls_normal(gram, a.T @ y)
+    want, _ = nnls(np.vstack([a, 1e-3 * np.eye(150)]), np.r_[y, np.zeros(150)], maxiter=7500)
+    assert len(calls) == int(cycles)
+    assert np.all(got >= 0) and 0 < np.count_nonzero(want) < 75
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max())
