@@ -102,11 +102,11 @@ def nnls_normal(h: np.ndarray, b: np.ndarray) -> np.ndarray:
     none does (the optimality conditions).  When a swap of all of them fails to shrink the count of violations
     three times running, only the violating unknown of largest index changes sides (Murty's rule).  It starts
     from all unknowns free (the unconstrained minimiser) and takes a median of 5 (rgl/satin_purple) to 12
-    (rgl/cc_amber_citrine) Cholesky solves of the free block on the bivariate table's 768-unknown problems, where
-    scipy's Lawson-Hanson ``nnls`` adds one unknown per step.  Murty's rule terminates but may take exponentially
-    many steps: on nearly collinear columns with a sparse solution (a reference prior's 150 unit-energy tables)
-    the pivoting can cycle through hundreds of sets, so after :data:`NNLS_MAX_SOLVES` solves the problem goes to
-    scipy's ``nnls`` on the Cholesky factor of ``H`` instead.
+    (rgl/cc_amber_citrine) Cholesky solves of the free block on the bivariate tables' problems (384 and 768
+    unknowns), where scipy's Lawson-Hanson ``nnls`` adds one unknown per step.  Murty's rule terminates but may
+    take exponentially many steps: on nearly collinear columns with a sparse solution (a reference prior's 150
+    unit-energy tables) the pivoting can cycle through hundreds of sets, so after :data:`NNLS_MAX_SOLVES` solves
+    the problem goes to scipy's ``nnls`` on the Cholesky factor of ``H`` instead.
 
     Returns
     -------
