@@ -392,8 +392,8 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
 
     probes = result.setup.relight_probes
     cases = [c for c in result.cases if c.model == AUTO and not c.failure]
-    points = [(c, p, c.errors[p], c.estimate_for(p)) for c in cases for p in probes
-              if c.estimate_for(p) and c.errors.get(p, 0) > 0]
+    points = [(c, p, c.errors[p], est) for c in cases for p in probes
+              if (est := c.estimate_for(p)) and c.errors.get(p, 0) > 0]
     if not points:
         return None
     fig, ax = plt.subplots(figsize=(5.2, 5.0))
