@@ -17,7 +17,7 @@ import pytest
 from brdfrig.fit.bivariate import BivariateBRDF
 from brdfrig.fit.blend import BlendBRDF, inverse_variance_weights, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
-from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.metrics import relative_rms, relative_spread
 from brdfrig.fit.scene import Scene
 from test_bivariate import _bivariate_truth, _sphere_normals, _tabulated, envs  # noqa: F401 - envs: the fixture (grace, pisa at 64 x 32)
 
@@ -177,3 +177,14 @@ def test_several_scenes_stack_the_tables_on_leave_one_scene_out_predictions(envs
     relit = relative_rms(result.brdf.predict(test_env, normals), render_tabulated(truth, normals, test_env))
     print(f"weights {result.brdf.weights}, estimate {cand.relight.value:.4f}, relit {relit:.4f}")
     assert relit < 0.01
+    # the parts' refits on the two folds, kept for an estimate under a given lighting: each fold's blend of them
+    # (BlendBRDF.predict) spreads under the other probe by s, so the estimate is e s / (sqrt(2) s0)
+    from brdfrig.fit.relight import FOLDS_FOR_LIGHTING, lighting_estimate
+
+    folds = [report.candidates[m].fit_report["fold_tables"] for m in parts]
+    assert all(t.shape[:3] == (2, 3, 2) for t in folds) and cand.fit_report["fold_spread"] > 0
+    blends = [BlendBRDF([BivariateBRDF(t[f][:, 0], t[f][:, 1]) for t in folds], result.brdf.weights) for f in range(2)]
+    s = relative_spread(np.stack([b.predict(test_env, normals) for b in blends]), np.ones(len(normals)))
+    est = lighting_estimate(report.to_dict(), test_env, normals, np.ones(len(normals)))
+    assert est.method == FOLDS_FOR_LIGHTING
+    assert est.value == pytest.approx(cand.relight.value * s / (math.sqrt(2) * cand.fit_report["fold_spread"]), rel=1e-6)

@@ -85,11 +85,12 @@ from tqdm import tqdm
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.lsq import nnls_normal
 from brdfrig.fit.measured import _local_angles_to_dirs, rusinkiewicz_coordinates, rusinkiewicz_directions
+from brdfrig.fit.metrics import relative_spread
 from brdfrig.fit.microfacet import _check_scenes, _subsample
 from brdfrig.fit.quadrature import LobeQuadrature, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment, Scene
 
-__all__ = ["BivariateBRDF", "fit_bivariate", "predict_tables", "project_to_nodes", "resampled_spread", "DEFAULT_NH",
+__all__ = ["BivariateBRDF", "fit_bivariate", "predict_tables", "project_to_nodes", "tables_spread", "DEFAULT_NH",
            "DEFAULT_ND", "RESAMPLES"]
 
 DEFAULT_NH = 24
@@ -668,7 +669,7 @@ def _resample_references(problems: list[_Channel], lams: list[float], references
     """Tables (count, C, 2K) re-solved, at the chosen ``lam_rel``, with the reference prior refitted to a bootstrap
     resample of the reference materials (materials drawn with replacement, all of a material's columns together).
 
-    Their spread is what the choice of references leaves undetermined (:func:`resampled_spread`).
+    Their spread is what the choice of references leaves undetermined (:func:`tables_spread`).
     """
     columns, labels = references.columns()
     names = sorted({n for n, _ in labels})
@@ -686,25 +687,20 @@ def _resample_references(problems: list[_Channel], lams: list[float], references
     return out
 
 
-def resampled_spread(tables, env: Environment, normals, weights) -> float:
-    """Relative RMS spread of resampled tables' radiance about their mean under ``env``.
+def tables_spread(tables, env: Environment, normals, weights) -> float:
+    """Relative RMS spread of several tables' radiance about their mean under ``env``
+    (:func:`brdfrig.fit.metrics.relative_spread`).
 
-    ``tables`` (B, C, 2, nh, nd): ``resampled_tables`` of a fit report; ``normals`` (N, 3) unit sphere normals
-    (view ``v = (0, 0, 1)``) and ``weights`` (N,) pixel weights.  Returns
-    ``sqrt(mean_b sum_n w_n |f_b(n) - mean_b f_b(n)|^2 / sum_n w_n |mean_b f_b(n)|^2)`` (channels summed), 0 for a
-    dark mean.  The design uses the fit's quadrature (:data:`FIT_CONE_DEG`, :data:`FIT_SUBDIV`).
+    ``tables`` (B, C, 2, nh, nd): node values of B tables (a fit report's ``resampled_tables`` or ``fold_tables``);
+    ``normals`` (N, 3) unit sphere normals (view ``v = (0, 0, 1)``) and ``weights`` (N,) pixel weights.  The design
+    uses the fit's quadrature (:data:`FIT_CONE_DEG`, :data:`FIT_SUBDIV`).
     """
     tables = np.asarray(tables, dtype=np.float64)
     b, channels, _, nh, nd = tables.shape
     if env.channels != channels:
-        raise ValueError(f"resampled tables have {channels} channels but the environment has {env.channels}")
+        raise ValueError(f"the tables have {channels} channels but the environment has {env.channels}")
     design = _design(lobe_quadrature(env, cone_deg=FIT_CONE_DEG, subdiv=FIT_SUBDIV), normals, nh, nd)
-    preds = np.einsum("nkc,bck->bnc", design, tables.reshape(b, channels, 2 * nh * nd))
-    mean = preds.mean(axis=0)
-    w = np.asarray(weights, dtype=np.float64)
-    energy = float(np.einsum("nc,n->", mean**2, w))
-    spread = float(np.einsum("bnc,n->", (preds - mean) ** 2, w)) / b
-    return math.sqrt(spread / energy) if energy > 0 else 0.0
+    return relative_spread(np.einsum("nkc,bck->bnc", design, tables.reshape(b, channels, 2 * nh * nd)), weights)
 
 
 def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: bool | None, transform: np.ndarray, norm: float):
@@ -779,7 +775,7 @@ def fit_bivariate(
         measured tables that best reproduces the pixels (:func:`_reference_prior`), ``lam_rel`` :data:`REFERENCE_LAMBDA`.
     resamples : int
         With ``references``: also re-solve the table this many times, each with the prior refitted to a bootstrap
-        resample of the reference materials (report ``resampled_tables``; :func:`resampled_spread`).
+        resample of the reference materials (report ``resampled_tables``; :func:`tables_spread`).
     cone_deg, subdiv, seed, progress : float, int, int, bool
         Sharp-lobe quadrature of the design (:func:`brdfrig.fit.quadrature.lobe_quadrature`); seed of the pixel
         subsample; a tqdm bar (stderr) over streamed pixels.

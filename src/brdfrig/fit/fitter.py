@@ -19,8 +19,10 @@ Pipeline (``docs/MATH.md``):
    leave-one-scene-out predictions.  ``auto`` (and the blend) compare candidates (weigh the tables) on
    interleaved folds and, with more scenes than folds, report the chosen fit's estimate from folds of
    consecutive scenes (``"arcs"``); another requested model's estimate is the arcs'.  One-image fits also
-   keep ``bivariate+measured``'s tables re-solved on resampled references (its report's ``resampled_tables``):
-   :func:`brdfrig.fit.relight.lighting_estimate` turns them into an estimate for a given lighting.
+   keep ``bivariate+measured``'s tables re-solved on resampled references (its report's ``resampled_tables``),
+   several-scene fits the chosen table's (a blend's parts') refits on the folds its estimate came from
+   (``fold_tables``, ``fold_spread``): :func:`brdfrig.fit.relight.lighting_estimate` turns them into an estimate
+   for a given lighting.
 6. Judgement and choice (:mod:`brdfrig.fit.select`): determinacy, finite non-negative predicted
    radiance, plausibility; from one image ``auto`` keeps a parametric family where it holds against a
    flexible table (held-out errors above the pixel noise, :mod:`brdfrig.fit.noise`), else takes the
@@ -42,14 +44,14 @@ from brdfrig.errors import InputError
 from brdfrig.fit.bivariate import RESAMPLES
 from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF
-from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.metrics import relative_rms, relative_spread
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
 from brdfrig.fit.models import make_linear_brdf, plausibility, project_to_full
 from brdfrig.fit.noise import scenes_noise
 from brdfrig.fit.references import shipped
 from brdfrig.fit.registry import MODELS, PARAMETRIC, PRIOR_OF, REGISTRY, RICHNESS, SOLVERS, single_fit
 from brdfrig.fit.relight import (LOSO_MAX_FOLDS, SPREAD, LosoPredictions, across_lightings, estimate_pixels,
-                                 loso_predictions, other_lightings, predict_held, predict_under, spread_estimates)
+                                 fold_predictions, loso_predictions, other_lightings, predict_held, predict_under, spread_estimates)
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate
 from brdfrig.fit.scene import Scene
 from brdfrig.fit.select import choose, fit_warnings, judge, radiance_problem
@@ -374,9 +376,13 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     if chosen not in fitter.brdfs:
         raise ValueError(f"model {chosen!r} could not be fitted: {cands[chosen].to_dict()}")
     relight = cands[chosen].relight or RelightEstimate(None, "none", "not estimated (estimate=False)")
+    folds = fitter.loso
     if estimate and model in ("auto", BLEND) and len(scenes) > LOSO_MAX_FOLDS:  # the two splits differ
         with data.clock("other"):
-            relight = _arcs_estimate(data, fitter, chosen, settings, model == "auto")
+            relight, folds = _arcs_estimate(data, fitter, chosen, settings, model == "auto")
+    if folds is not None:
+        with data.clock("other"):
+            _keep_folds(fitter, data, chosen, folds)
     report = FitReport(
         chosen_model=chosen, reason=reason, requested_model=model, solver=solver, lmax=lmax, pmax=pmax,
         n_scenes=len(scenes), pixels=counts, limb_margin_max_theta_deg=max_theta_deg, heldout_pixels=int(len(data.held)),
@@ -430,21 +436,36 @@ def _estimate(data: FitData, fitter: _Candidates, model: str, settings: tuple, p
         cands[m].relight = est
 
 
+def _keep_folds(fitter: _Candidates, data: FitData, chosen: str, loso: LosoPredictions) -> None:
+    """The chosen table (or each part of the chosen blend) refitted on every fold of the leave-one-scene-out pass
+    that gave its estimate: the refits' node values (``fold_tables``) in its report, and their spread over the
+    left-out pixels (``fold_spread``) in the chosen model's (a blend's parts combined with its weights), for
+    :func:`~brdfrig.fit.relight.lighting_estimate`.  Nothing for a model without table refits on every fold."""
+    names = list(fitter.entries[BLEND].fit_report["parts"]) if chosen == BLEND else [chosen]
+    preds = {m: p for m in names if (p := fold_predictions(data, loso, m)) is not None}
+    if len(preds) < len(names):
+        return
+    for m in names:
+        fitter.entries[m].fit_report["fold_tables"] = np.stack([np.moveaxis(b.tables, 0, 1) for b in loso.brdfs[m]])
+    combined = fitter.brdfs[BLEND].combine([preds[m] for m in names]) if chosen == BLEND else preds[chosen]
+    fitter.entries[chosen].fit_report["fold_spread"] = relative_spread(combined, loso.weights)
+
+
 def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: str) -> LosoPredictions:
     """Leave-one-scene-out predictions of ``names`` on the folds of ``split``, each fold refitted by :func:`_refit`."""
     return loso_predictions(data, names, lambda fold, ms: _refit(fold, ms, settings, auto), split)
 
 
-def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tuple, auto: bool) -> RelightEstimate:
+def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tuple, auto: bool) -> tuple[RelightEstimate, LosoPredictions]:
     """Estimate of ``chosen`` from the ``"arcs"`` split (a blend's parts refitted and combined with the blend's
-    weights) and its spread (:func:`~brdfrig.fit.relight.across_lightings`)."""
+    weights) and its spread (:func:`~brdfrig.fit.relight.across_lightings`), and the arcs pass."""
     if chosen == BLEND:
         names, combine = list(fitter.entries[BLEND].fit_report["parts"]), fitter.brdfs[BLEND].combine
     else:
         names, combine = [chosen], lambda preds: preds[0]
     run = _loso(data, names, settings, auto, "arcs")
     missing = any(m not in run.preds for m in names)
-    return across_lightings(run.estimate(None if missing else combine([run.preds[m] for m in names])), fitter.spread.get(chosen))
+    return across_lightings(run.estimate(None if missing else combine([run.preds[m] for m in names])), fitter.spread.get(chosen)), run
 
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:

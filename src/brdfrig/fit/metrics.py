@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["relative_rms"]
+__all__ = ["relative_rms", "relative_spread"]
 
 
 def relative_rms(pred, truth, weights=None) -> float:
@@ -30,3 +30,24 @@ def relative_rms(pred, truth, weights=None) -> float:
     if den == 0.0:
         return 0.0 if num == 0.0 else float("inf")
     return float(np.sqrt(num / den))
+
+
+def relative_spread(preds, weights) -> float:
+    """Relative RMS spread of several predictions about their mean.
+
+    ``sqrt(mean_b sum_n w_n |p_b(n) - m(n)|^2 / sum_n w_n |m(n)|^2)`` with ``m = mean_b p_b``, channels summed; 0 for
+    a dark mean.
+
+    Parameters
+    ----------
+    preds : (B, N, C) array_like
+        B predictions of the radiance of N pixels.
+    weights : (N,) array_like
+        Per-pixel weights.
+    """
+    preds = np.asarray(preds, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    mean = preds.mean(axis=0)
+    energy = float(np.einsum("nc,n->", mean**2, w))
+    spread = float(np.einsum("bnc,n->", (preds - mean) ** 2, w)) / len(preds)
+    return float(np.sqrt(spread / energy)) if energy > 0 else 0.0

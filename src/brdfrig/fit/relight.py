@@ -42,10 +42,12 @@ hold 58% of its power, relight under ennis 5-25x below the estimate and under gr
 of it on 10 of 11 measured materials (docs/DESIGN.md, History).  The one-image calibration
 (:data:`SPREAD_CALIBRATION`) was fitted against errors under ennis.
 
-For a named lighting (``brdfrig render --lighting``, the benchmark's relight probes) a one-image estimate can look
-at that lighting: :func:`lighting_estimate` combines the estimate above with the spread, under the lighting, of
+For a named lighting (``brdfrig render --lighting``, the benchmark's relight probes) :func:`lighting_estimate` carries
+the estimate above to that lighting with tables the fit keeps, whose spread under it can be computed: from one image,
 ``bivariate+measured``'s tables re-solved on bootstrap resamples of the reference materials (what one image left to
-the references shows up where the lighting lights it).
+the references shows up where the lighting lights it); from several scenes, the chosen table (a blend's parts)
+refitted on each fold of the leave-one-scene-out pass its estimate came from (how far the refits part under the
+lighting, against how far they part on the scenes each did not see).
 """
 
 from __future__ import annotations
@@ -57,9 +59,9 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import nnls
 
-from brdfrig.fit.bivariate import BivariateBRDF, predict_tables, resampled_spread
+from brdfrig.fit.bivariate import BivariateBRDF, predict_tables, tables_spread
 from brdfrig.fit.blend import BlendBRDF
-from brdfrig.fit.metrics import relative_rms
+from brdfrig.fit.metrics import relative_rms, relative_spread
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.rotation import axis_rotation
@@ -68,7 +70,7 @@ from brdfrig.fit.stream import FitData
 
 __all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "CALIBRATED_FOR", "LOSO_MAX_FOLDS", "FOLD_SPLITS", "other_lightings", "loso_folds", "estimate_pixels",
            "predict_under", "predict_held", "spread_estimates", "across_lightings", "LosoPredictions", "loso_predictions",
-           "RESAMPLE_CALIBRATION", "lighting_estimate"]
+           "RESAMPLE_CALIBRATION", "fold_predictions", "lighting_estimate"]
 
 OTHER_ROTATIONS = (("y", 90.0), ("y", 180.0), ("y", 270.0), ("x", 90.0), ("x", -90.0))
 """(axis, degrees) of the turned copies of the fit lighting the spread estimate predicts under."""
@@ -106,6 +108,7 @@ SPREAD = "rotated-lighting spread"
 LOSO = "leave-one-scene-out"
 ACROSS = "leave-one-scene-out and rotated-lighting spread"
 FOR_LIGHTING = "rotated-lighting spread and resampled references under the lighting"
+FOLDS_FOR_LIGHTING = "carried to the lighting by the leave-one-scene-out refits"
 
 
 def other_lightings(env: Environment) -> list[Environment]:
@@ -255,37 +258,72 @@ def across_lightings(loso: RelightEstimate, spread: RelightEstimate | None) -> R
 def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weights: np.ndarray) -> RelightEstimate:
     """The fit's relighting error estimated for the lighting ``env`` (``brdfrig render --lighting``).
 
-    ``report``: a :class:`~brdfrig.fit.report.FitReport`'s dict (the ``report`` of a BRDF file).  A one-image fit
-    keeps ``bivariate+measured``'s tables re-solved on bootstrap resamples of the reference materials
-    (``resampled_tables``): their relative spread ``s_L`` under ``env`` (:func:`~brdfrig.fit.bivariate.resampled_spread`
-    over a seeded subsample of :data:`ESTIMATE_PIXELS` of the sphere points ``normals`` (N, 3) with pixel
-    ``weights`` (N,)) grows where ``env`` lights what one image left to the
-    references.  The estimate is ``sqrt(e k s_L)``, the geometric mean of the report's estimate ``e`` (which does
-    not depend on the lighting) and ``k s_L`` (:data:`RESAMPLE_CALIBRATION`).  Without resampled tables (several
-    scenes, no estimate) or with ``e`` missing: the report's estimate as it is.
+    ``report``: a :class:`~brdfrig.fit.report.FitReport`'s dict (the ``report`` of a BRDF file); ``normals`` (N, 3)
+    sphere points and their pixel ``weights`` (N,), of which a seeded subsample of :data:`ESTIMATE_PIXELS` is used.
+    The report's estimate ``e`` does not depend on the lighting; tables the report keeps spread under ``env`` by a
+    relative amount (:func:`~brdfrig.fit.metrics.relative_spread`) that does:
+
+    - one image: ``bivariate+measured``'s tables re-solved on bootstrap resamples of the reference materials
+      (``resampled_tables``).  Their spread ``s_L`` grows where ``env`` lights what one image left to the references;
+      the estimate is ``sqrt(e k s_L)``, the geometric mean of ``e`` and ``k s_L`` (:data:`RESAMPLE_CALIBRATION`).
+    - several scenes: the chosen table (or each part of the chosen blend, combined with the blend's weights)
+      refitted on each of the F folds of the leave-one-scene-out pass that gave ``e`` (``fold_tables``).  Under a
+      fit scene one refit has not seen it: deviating from the others by ``D`` it spreads them by
+      ``sqrt(F - 1) D / F``; under a lighting none has seen, F refits each deviating by ``D`` spread by
+      ``sqrt((F - 1) / F) D``, ``sqrt(F)`` times more.  With ``s_0`` their spread over the left-out pixels (``fold_spread``), ``s_L / (sqrt(F) s_0)`` is how
+      much more (or less) the refits deviate under ``env`` than under the fit's lightings, and the estimate is
+      ``e s_L / (sqrt(F) s_0)``: no constant fitted to materials.
+
+    Otherwise (no estimate, a parametric model chosen, refits that agree on every fit scene): the report's estimate.
 
     Raises
     ------
     ValueError, TypeError, KeyError
-        A damaged report: tables of the wrong shape, not finite or negative; an estimate that is not a number >= 0.
+        A damaged report: tables of the wrong shape, not finite or negative; an estimate or spread that is not a
+        number >= 0.
     """
     standing = RelightEstimate(**report["relight"]) if report.get("relight") else RelightEstimate(None, "none", "not estimated")
-    entry = report.get("candidates", {}).get("bivariate+measured", {})
-    tables = (entry.get("fit_report") or {}).get("resampled_tables")
-    if tables is None or standing.value is None:
+    cands = report.get("candidates") or {}
+    kept = {m: (c or {}).get("fit_report") or {} for m, c in cands.items()}
+    resampled = kept.get("bivariate+measured", {}).get("resampled_tables")
+    chosen = kept.get(report.get("chosen_model"), {})
+    if standing.value is None or (resampled is None and chosen.get("fold_spread") is None):
         return standing
+    e = _number(standing.value, "the fit's relight estimate")
+    rows = _subsample(len(weights), ESTIMATE_PIXELS)
+    normals, weights = np.asarray(normals)[rows], np.asarray(weights)[rows]
+    if resampled is not None:
+        tables = _node_values(resampled, "resampled_tables of bivariate+measured")
+        s, k = tables_spread(tables, env, normals, weights), RESAMPLE_CALIBRATION
+        return RelightEstimate(math.sqrt(e * k * s), FOR_LIGHTING,
+                               f"sqrt(e x {k:g} s) of e = {e:.3g} ({standing.method}) and the spread s = {s:.3g} "
+                               f"of {len(tables)} bivariate+measured tables re-solved on resampled references, under this lighting")
+    s0 = _number(chosen["fold_spread"], f"fold_spread of {report['chosen_model']}")
+    parts = chosen.get("parts") or {report["chosen_model"]: 1.0}
+    folds = {m: _node_values(kept.get(m, {}).get("fold_tables"), f"fold_tables of {m}") for m in parts}
+    if s0 == 0 or len({len(t) for t in folds.values()}) != 1:
+        return standing
+    preds = sum(w * np.stack(predict_tables([BivariateBRDF(t[:, 0], t[:, 1]) for t in folds[m]], env, normals))
+                for m, w in parts.items())
+    s, f = relative_spread(preds, weights), len(next(iter(folds.values())))
+    return RelightEstimate(e * s / (math.sqrt(f) * s0), FOLDS_FOR_LIGHTING,
+                           f"e s / (sqrt({f}) s0) of e = {e:.3g} ({standing.method}), the spread s = {s:.3g} of the fit "
+                           f"refitted on {f} folds under this lighting and s0 = {s0:.3g} over the left-out pixels")
+
+
+def _node_values(tables, what: str) -> np.ndarray:
+    """``tables`` as (B, C, 2, nh, nd) finite non-negative node values, refused otherwise (a damaged report)."""
     tables = np.asarray(tables, dtype=np.float64)
     if tables.ndim != 5 or tables.shape[2] != 2 or not np.all(np.isfinite(tables)) or np.any(tables < 0):
-        raise ValueError(f"resampled_tables of bivariate+measured must be finite non-negative (B, C, 2, nh, nd) node "
-                         f"values, got shape {tables.shape}")
-    if not (math.isfinite(standing.value) and standing.value >= 0):
-        raise ValueError(f"the fit's relight estimate must be a finite number >= 0, got {standing.value!r}")
-    rows = _subsample(len(weights), ESTIMATE_PIXELS)
-    s = resampled_spread(tables, env, np.asarray(normals)[rows], np.asarray(weights)[rows])
-    k = RESAMPLE_CALIBRATION
-    return RelightEstimate(math.sqrt(standing.value * k * s), FOR_LIGHTING,
-                           f"sqrt(e x {k:g} s) of e = {standing.value:.3g} ({standing.method}) and the spread s = {s:.3g} "
-                           f"of {len(tables)} bivariate+measured tables re-solved on resampled references, under this lighting")
+        raise ValueError(f"{what} must be finite non-negative (B, C, 2, nh, nd) node values, got shape {tables.shape}")
+    return tables
+
+
+def _number(value, what: str) -> float:
+    """``value`` as a float, refused unless a finite number >= 0 (a damaged report)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{what} must be a finite number >= 0, got {value!r}")
+    return float(value)
 
 
 def _fold_split(data: FitData, out: np.ndarray) -> tuple[FitData, np.ndarray]:
@@ -326,12 +364,18 @@ class LosoPredictions:
         Model name -> (N, C) prediction, for the candidates refitted on every fold with finite predictions.
     detail : str
         The folds, for the estimates' ``detail``.
+    rows : (N,) int
+        The left-out pixels' rows of the fit's pixel pool.
+    brdfs : dict
+        Model name -> its refit on each fold, for the models in ``preds``.
     """
 
     target: np.ndarray
     weights: np.ndarray
     preds: dict[str, np.ndarray]
     detail: str
+    rows: np.ndarray
+    brdfs: dict[str, list]
 
     def estimate(self, pred: np.ndarray | None) -> RelightEstimate:
         """The weighted relative RMS error of ``pred`` (None: no estimate)."""
@@ -354,12 +398,12 @@ def loso_predictions(data: FitData, names: list[str], fit_fold: Callable[[FitDat
     n_scenes = len(data.scenes)
     folds = loso_folds(n_scenes, split)
     preds: dict[str, list] = {m: [] for m in names}
-    targets, weights = [], []
+    refits: dict[str, list] = {m: [] for m in names}
+    rows = []
     for out in folds:
         fold, test = _fold_split(data, out)
         brdfs = fit_fold(fold, names)
-        targets.append(data.pool.radiance[test])
-        weights.append(data.pool.weights[test])
+        rows.append(test)
         fold_preds = predict_held(fold.with_split(fold.train, test), {m: brdfs[m] for m in preds if m in brdfs})
         for m in list(preds):
             pred = fold_preds.get(m)
@@ -367,7 +411,20 @@ def loso_predictions(data: FitData, names: list[str], fit_fold: Callable[[FitDat
                 del preds[m]
             else:
                 preds[m].append(pred)
+                refits[m].append(brdfs[m])
     how = FOLD_SPLITS[split].format(F=len(folds))
     detail = f"{len(folds)} folds of {n_scenes} scenes ({how}), refitted without each fold"
-    return LosoPredictions(np.concatenate(targets), np.concatenate(weights),
-                           {m: np.concatenate(p) for m, p in preds.items()}, detail)
+    rows = np.concatenate(rows)
+    return LosoPredictions(data.pool.radiance[rows], data.pool.weights[rows], {m: np.concatenate(p) for m, p in preds.items()},
+                           detail, rows, {m: refits[m] for m in preds})
+
+
+def fold_predictions(data: FitData, loso: LosoPredictions, name: str) -> np.ndarray | None:
+    """(F, N, C) radiance of the table model ``name`` refitted on each of the F folds of ``loso`` at all N left-out
+    pixels (each under its own scene's lighting); None unless ``name`` has a table refit
+    (:class:`~brdfrig.fit.bivariate.BivariateBRDF`) on every fold of at least 2."""
+    refits = loso.brdfs.get(name, [])
+    if len(refits) < 2 or not all(isinstance(b, BivariateBRDF) for b in refits):
+        return None
+    test = data.with_split(data.train, loso.rows)
+    return np.stack([predict_held(test, {name: b})[name] for b in refits])

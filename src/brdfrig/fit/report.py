@@ -255,9 +255,10 @@ def format_report(report: FitReport) -> list[str]:
     rel = report.relight
     if rel is not None and rel.value is not None:
         lines.append(f"estimated relighting error under other lighting: {_pct(rel.value)} ({rel.method}: {rel.detail})")
-        table = report.candidates.get("bivariate+measured")
-        if table is not None and "resampled_tables" in (table.fit_report or {}):
-            lines.append("  for a given lighting, 'brdfrig render --lighting' estimates it from the references' resampled tables")
+        for name, key, what in (("bivariate+measured", "resampled_tables", "the references' resampled tables"),
+                                (report.chosen_model, "fold_spread", "the fit's refits on the folds")):
+            if key in ((report.candidates.get(name) or Candidate(name)).fit_report or {}):
+                lines.append(f"  for a given lighting, 'brdfrig render --lighting' estimates it from {what}")
     else:
         lines.append(f"estimated relighting error under other lighting: none ({rel.detail if rel else 'not estimated'})")
     return lines
