@@ -287,6 +287,9 @@ def test_lighting_estimate_of_several_scenes_from_the_refits_on_the_folds(synthe
         bad = {"bivariate": {"fit_report": {"fold_tables": folds["bivariate"], "fold_spread": s0} | {key: value}}}
         with pytest.raises(ValueError, match=match):
             lighting_estimate(report | {"candidates": bad}, test_env, scenes[0].normals, scenes[0].weights)
+    uneven = report["candidates"] | {"bivariate+blend": blend, "bivariate": {"fit_report": {"fold_tables": folds["bivariate"][:2]}}}
+    with pytest.raises(ValueError, match="differ in their number of folds"):
+        lighting_estimate(report | {"chosen_model": "bivariate+blend", "candidates": uneven}, test_env, scenes[0].normals, scenes[0].weights)
 
 
 def test_several_scene_fit_keeps_its_refits_on_the_folds(synthetic_references, tmp_path):

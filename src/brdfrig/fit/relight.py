@@ -301,7 +301,9 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
     s0 = _number(chosen["fold_spread"], f"fold_spread of {report['chosen_model']}")
     parts = chosen.get("parts") or {report["chosen_model"]: 1.0}
     folds = {m: _node_values(kept.get(m, {}).get("fold_tables"), f"fold_tables of {m}") for m in parts}
-    if s0 == 0 or len({len(t) for t in folds.values()}) != 1:
+    if len({len(t) for t in folds.values()}) != 1:
+        raise ValueError(f"fold_tables of {', '.join(parts)} differ in their number of folds")
+    if s0 == 0:
         return standing
     preds = sum(w * np.stack(predict_tables([BivariateBRDF(t[:, 0], t[:, 1]) for t in folds[m]], env, normals))
                 for m, w in parts.items())
