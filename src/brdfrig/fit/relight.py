@@ -270,9 +270,9 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
       refitted on each of the F folds of the leave-one-scene-out pass that gave ``e`` (``fold_tables``).  Under a
       fit scene one refit has not seen it: deviating from the others by ``D`` it spreads them by
       ``sqrt(F - 1) D / F``; under a lighting none has seen, F refits each deviating by ``D`` spread by
-      ``sqrt((F - 1) / F) D``, ``sqrt(F)`` times more.  With ``s_0`` their spread over the left-out pixels (``fold_spread``), ``s_L / (sqrt(F) s_0)`` is how
-      much more (or less) the refits deviate under ``env`` than under the fit's lightings, and the estimate is
-      ``e s_L / (sqrt(F) s_0)``: no constant fitted to materials.
+      ``sqrt((F - 1) / F) D``, ``sqrt(F)`` times more.  With ``s_0`` their spread over the left-out pixels
+      (``fold_spread``), ``s_L / (sqrt(F) s_0)`` is how much more (or less) the refits deviate under ``env`` than
+      under the fit's lightings, and the estimate is ``e s_L / (sqrt(F) s_0)``: no constant fitted to materials.
 
     Otherwise (no estimate, a parametric model chosen, refits that agree on every fit scene): the report's estimate.
 
@@ -305,9 +305,10 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
         raise ValueError(f"fold_tables of {', '.join(parts)} differ in their number of folds")
     if s0 == 0:
         return standing
-    preds = sum(w * np.stack(predict_tables([BivariateBRDF(t[:, 0], t[:, 1]) for t in folds[m]], env, normals))
-                for m, w in parts.items())
-    s, f = relative_spread(preds, weights), len(next(iter(folds.values())))
+    f = len(next(iter(folds.values())))
+    radiance = predict_tables([BivariateBRDF(t[:, 0], t[:, 1]) for m in parts for t in folds[m]], env, normals)  # one pass
+    preds = sum(w * np.stack(radiance[i * f:(i + 1) * f]) for i, w in enumerate(parts.values()))
+    s = relative_spread(preds, weights)
     return RelightEstimate(e * s / (math.sqrt(f) * s0), FOLDS_FOR_LIGHTING,
                            f"e s / (sqrt({f}) s0) of e = {e:.3g} ({standing.method}), the spread s = {s:.3g} of the fit "
                            f"refitted on {f} folds under this lighting and s0 = {s0:.3g} over the left-out pixels")
@@ -428,5 +429,5 @@ def fold_predictions(data: FitData, loso: LosoPredictions, name: str) -> np.ndar
     refits = loso.brdfs.get(name, [])
     if len(refits) < 2 or not all(isinstance(b, BivariateBRDF) for b in refits):
         return None
-    test = data.with_split(data.train, loso.rows)
-    return np.stack([predict_held(test, {name: b})[name] for b in refits])
+    preds = predict_held(data.with_split(data.train, loso.rows), dict(enumerate(refits)))  # one quadrature pass
+    return np.stack([preds[f] for f in range(len(refits))])
