@@ -130,6 +130,7 @@ def test_one_noisy_image_recovers_parameters_and_relights(name):
     noisy = observed * (1 + 0.01 * np.random.default_rng(0).standard_normal(observed.shape))
     brdf, report = fit_pbr([Scene(fit_env, normals, noisy, np.ones(len(normals)))], name, progress=False)
     assert isinstance(brdf, FittedBRDF) and brdf.model == name and report["determined"]
+    assert not any(report["at_bound"].values())
     want = truth.to_dict()
     np.testing.assert_allclose(report["base_color"], want["base_color"], rtol=0.03, atol=0.01)
     np.testing.assert_allclose(report["specular_roughness" if name != "sheen" else "fuzz_roughness"],
@@ -146,6 +147,18 @@ def test_one_noisy_image_recovers_parameters_and_relights(name):
     assert relative_rms(relit, truth.predict(test_env, normals)) < 0.01
     back = brdf_from_dict(brdf.to_dict())
     np.testing.assert_array_equal(back.evaluate(0.3, 0.5, 2.0), brdf.evaluate(0.3, 0.5, 2.0))
+
+
+@pytest.mark.parametrize("ior, bound", [(1.1, 1.3), (2.6, 2.0)])
+def test_ior_beyond_the_search_bounds_is_not_determined(ior, bound):
+    """A coating whose IOR lies outside :data:`IOR_BOUNDS` fits at the bound, and the fit says it is not determined
+    (``auto`` then does not choose the family); the IOR 1.49 image of the test above fits inside."""
+    fit_env, _, normals = _case(size=16)
+    truth = DielectricBRDF([0.3, 0.2, 0.1], 0.2, 1.0, math.sqrt(0.05), ior)
+    scene = Scene(fit_env, normals, truth.predict(fit_env, normals), np.ones(len(normals)))
+    _, report = fit_pbr([scene], "dielectric", progress=False)
+    assert report["specular_ior"] == pytest.approx(bound, abs=0.01)
+    assert report["at_bound"] == {"specular_roughness": False, "specular_ior": True} and not report["determined"]
 
 
 def test_families_share_lobe_renders_without_changing_the_fit():

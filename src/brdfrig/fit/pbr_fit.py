@@ -363,6 +363,8 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
     if coat:
         alpha, _, at_bound["specular_roughness"] = _search(lambda g: prob.profile_ior(math.exp(g), fuzz_alpha, fuzz_col(fuzz_alpha))[0], ALPHA_BOUNDS)
         e = prob.profile_ior(alpha, fuzz_alpha, fuzz_col(fuzz_alpha))[1]
+        if ior is None:
+            at_bound["specular_ior"] = min(abs(e - IOR_BOUNDS[0]), abs(e - IOR_BOUNDS[1])) < 5 * IOR_XTOL
         bar.update(1)
     r2, amps, w = prob.solve(alpha, e, fuzz_alpha, fuzz_col(fuzz_alpha), fw)
     base, sigma, sigma_clamped, color_clamped = _base_params(amps)
@@ -373,8 +375,7 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
         brdf = SheenBRDF(fuzz_color=color, fuzz_roughness=math.sqrt(fuzz_alpha), fuzz_weight=fw, **kw)
     else:
         brdf = DielectricBRDF(**kw)
-    extra = {"sigma_clamped": sigma_clamped, "base_color_clamped": color_clamped,
-             "ior_at_bound": bool(coat and ior is None and min(abs(e - IOR_BOUNDS[0]), abs(e - IOR_BOUNDS[1])) < 5 * IOR_XTOL)}
+    extra = {"sigma_clamped": sigma_clamped, "base_color_clamped": color_clamped}
     return brdf, r2, at_bound, extra
 
 
@@ -438,8 +439,8 @@ def fit_pbr(
     -------
     brdf : DielectricBRDF, ConductorBRDF or SheenBRDF
     report : dict
-        JSON-able: ``model``, the BRDF's parameters (``to_dict`` names), ``determined`` (no present
-        lobe has its roughness on a search bound), ``at_bound`` per shape parameter,
+        JSON-able: ``model``, the BRDF's parameters (``to_dict`` names), ``determined`` (no shape
+        parameter on a search bound: roughnesses and a fitted IOR), ``at_bound`` per shape parameter,
         ``relative_rms_residual`` (fit pixels), ``check_relative_rms`` (held-out pixels of the same
         scenes, rendered by ``predict``), ``pixels_used``, ``renders``, ``seconds``.
     """
