@@ -256,3 +256,23 @@ def test_a_fold_takes_the_prior_family_chosen_on_all_the_data(probes, monkeypatc
     failing.add(chosen)
     table, calls = refit(chosen)
     assert calls == [chosen, *(f for f in PARAMETRIC if f != chosen), "bivariate+prior"] and fitted[-1][1] != chosen
+
+
+def test_a_family_with_its_ior_on_the_search_bound_is_not_determined_and_says_why(probes):
+    """One image of a coating of IOR 2.6 (beyond :data:`brdfrig.fit.pbr_fit.IOR_BOUNDS`): the dielectric fit ends on
+    the bound, so the candidate is not determined, the report line names the parameter, and ``auto``'s rule passes
+    over it for a determined candidate even with a smaller held-out error."""
+    from brdfrig.fit.pbr import DielectricBRDF
+
+    fit_env, _ = probes
+    normals, weights = sphere(24)
+    scenes = make_scenes(DielectricBRDF([0.3, 0.2, 0.1], 0.2, 1.0, math.sqrt(0.05), 2.6), [fit_env], normals, weights)
+    rep = fit_brdf(scenes, model="dielectric", lmax=3, progress=False).report
+    cand = rep.candidates["dielectric"]
+    assert cand.fit_report["specular_ior"] == pytest.approx(2.0, abs=0.01) and not cand.determined
+    assert "WARNING: not determined" in rep.reason
+    line = next(t for t in format_report(rep) if t.lstrip().startswith("dielectric"))
+    assert line.endswith("[not determined: specular_ior on a search bound]")
+    other = Candidate("bivariate+measured", heldout_relative_rms=2 * cand.heldout_relative_rms, full_rank=True,
+                      determined=True, plausibility={"plausible": True})
+    assert choose({"dielectric": cand, "bivariate+measured": other})[0] == "bivariate+measured"

@@ -232,6 +232,12 @@ def _pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.2f}%"
 
 
+def _undetermined(c: Candidate) -> str:
+    """"not determined", with the shape parameters a single-model fit left on a search bound."""
+    bound = [k for k, on in ((c.fit_report or {}).get("at_bound") or {}).items() if on]
+    return "not determined" + (f": {', '.join(bound)} on a search bound" if bound else "")
+
+
 def format_report(report: FitReport) -> list[str]:
     """The lines ``brdfrig fit`` prints: pixels, one line per candidate, the choice and the relighting estimate."""
     lines = [f"pixels: {asdict(report.pixels)}"]
@@ -248,7 +254,7 @@ def format_report(report: FitReport) -> list[str]:
             text += f" rank {min(c.system.rank)}/{c.system.unknowns}, cond {max(c.system.condition_number):.3g}"
         elif c.fit_report is not None:
             text += " " + _parameters(c.fit_report) + _references(c.fit_report.get("references"))
-        flags = [f for f, on in (("not determined", not c.determined), ("implausible", c.plausibility is not None
+        flags = [f for f, on in ((_undetermined(c), not c.determined), ("implausible", c.plausibility is not None
                  and not c.plausibility["plausible"]), (c.radiance_check, c.radiance_check is not None)) if on]
         lines.append(text + "".join(f"  [{f}]" for f in flags))
     lines.append(f"model: {report.chosen_model} ({report.reason})")
