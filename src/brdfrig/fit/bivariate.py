@@ -691,7 +691,7 @@ def tables_spread(tables, env: Environment, normals, weights) -> float:
     """Relative RMS spread of several tables' radiance about their mean under ``env``
     (:func:`brdfrig.fit.metrics.relative_spread`).
 
-    ``tables`` (B, C, 2, nh, nd): node values of B tables (a fit report's ``resampled_tables`` or ``fold_tables``);
+    ``tables`` (B, C, 2, nh, nd): node values of B tables (a fit report's ``resampled_tables``);
     ``normals`` (N, 3) unit sphere normals (view ``v = (0, 0, 1)``) and ``weights`` (N,) pixel weights.  The design
     uses the fit's quadrature (:data:`FIT_CONE_DEG`, :data:`FIT_SUBDIV`).
     """

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -441,14 +442,20 @@ def _keep_folds(fitter: _Candidates, data: FitData, chosen: str, loso: LosoPredi
     that gave its estimate: the refits' node values (``fold_tables``) in its report, and their spread over the
     left-out pixels (``fold_spread``) in the chosen model's (a blend's parts combined with its weights), for
     :func:`~brdfrig.fit.relight.lighting_estimate`.  Nothing for a model without table refits on every fold."""
-    names = list(fitter.entries[BLEND].fit_report["parts"]) if chosen == BLEND else [chosen]
+    names, combine = _parts(fitter, chosen)
     preds = {m: p for m in names if (p := fold_predictions(data, loso, m)) is not None}
     if len(preds) < len(names):
         return
     for m in names:
         fitter.entries[m].fit_report["fold_tables"] = np.stack([np.moveaxis(b.tables, 0, 1) for b in loso.brdfs[m]])
-    combined = fitter.brdfs[BLEND].combine([preds[m] for m in names]) if chosen == BLEND else preds[chosen]
-    fitter.entries[chosen].fit_report["fold_spread"] = relative_spread(combined, loso.weights)
+    fitter.entries[chosen].fit_report["fold_spread"] = relative_spread(combine([preds[m] for m in names]), loso.weights)
+
+
+def _parts(fitter: _Candidates, chosen: str) -> tuple[list[str], Callable[[list[np.ndarray]], np.ndarray]]:
+    """The models refitted for ``chosen`` (a blend's parts, else itself) and how their predictions combine into its."""
+    if chosen == BLEND:
+        return list(fitter.entries[BLEND].fit_report["parts"]), fitter.brdfs[BLEND].combine
+    return [chosen], lambda preds: preds[0]
 
 
 def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: str) -> LosoPredictions:
@@ -459,10 +466,7 @@ def _loso(data: FitData, names: list[str], settings: tuple, auto: bool, split: s
 def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tuple, auto: bool) -> tuple[RelightEstimate, LosoPredictions]:
     """Estimate of ``chosen`` from the ``"arcs"`` split (a blend's parts refitted and combined with the blend's
     weights) and its spread (:func:`~brdfrig.fit.relight.across_lightings`), and the arcs pass."""
-    if chosen == BLEND:
-        names, combine = list(fitter.entries[BLEND].fit_report["parts"]), fitter.brdfs[BLEND].combine
-    else:
-        names, combine = [chosen], lambda preds: preds[0]
+    names, combine = _parts(fitter, chosen)
     run = _loso(data, names, settings, auto, "arcs")
     missing = any(m not in run.preds for m in names)
     return across_lightings(run.estimate(None if missing else combine([run.preds[m] for m in names])), fitter.spread.get(chosen)), run
