@@ -42,6 +42,10 @@ def test_exact_family_relights_at_zero_and_error_is_the_relative_rms(probes, tmp
     case = relight_case(GGX_TRUTH, "microfacet", **SMALL, cache_dir=tmp_path, probe_dir=probes)
     assert set(case.errors) == {"ennis", "pisa"} and case.chosen_model == "microfacet" and case.fit_seconds > 0
     assert max(case.errors.values()) < 2e-3, case.errors
+    # one model fitted alone reports no estimate, for any lighting, and says so for each
+    assert case.estimate is None and case.lighting_estimates == {"ennis": None, "pisa": None}
+    details = case.lighting_estimate_details
+    assert set(details) == {"ennis", "pisa"} and all(d.startswith("none: not estimated") for d in details.values())
     # the harness's number for a model that cannot fit GGX (Lambertian-only): the same relative RMS by hand
     setup = CaseSetup(SMALL["size"], relight_probes=("ennis",), env_rows=SMALL["env_rows"], probe_dir=probes)
     truth = render_truth(Material("ggx", brdf=GGX_TRUTH), setup, make_cache(tmp_path))
@@ -320,18 +324,20 @@ def test_summary_counts_estimates_against_every_relight_probe():
 def test_an_estimate_for_the_probe_counts_in_place_of_the_fit_estimate():
     """The same three materials with estimates for each lighting: ennis 0.3%, 2%, 5% (within 2x of 0.2%, 1%, 6% on
     all three; the fit's own estimate on one) and grace turned 5%, 2.5%, 9% (of 1.5%, 2.5%, 21%: the second only).
-    The JSON round trip keeps them."""
+    The JSON round trip keeps them and how each was obtained."""
     from brdfrig.evaluate.measured_report import result_from_json, result_to_json, summarize
 
     lit = {"a": (0.003, 0.05), "b": (0.02, 0.025), "c": (0.05, 0.09)}
     cases = [_case("a", "auto", 0.002, 0.01, 0.015), _case("b", "auto", 0.01, 0.04, 0.025),
              _case("c", "auto", 0.06, 0.10, 0.21)]
-    cases = [c | {"lighting_estimates": dict(zip(("ennis", "grace@y180"), lit[c["material"]]))} for c in cases]
+    cases = [c | {"lighting_estimates": dict(zip(("ennis", "grace@y180"), lit[c["material"]])),
+                  "lighting_estimate_details": {"ennis": f"how {c['material']}"}} for c in cases]
     result = result_from_json(_run(cases, ["auto"], ("ennis", "grace@y180")))
     row = next(r for r in summarize(result) if r["model"] == "auto")
     assert (row["estimates_within_2x"], row["estimates_within_2x_under"]) == (3, {"grace@y180": 1})
     again = result_from_json(result_to_json(result))
     assert [c.lighting_estimates for c in again.cases] == [c["lighting_estimates"] for c in cases]
+    assert [c.lighting_estimate_details for c in again.cases] == [{"ennis": f"how {m}"} for m in "abc"]
 
 
 def test_summary_noise_ratios_and_tables_against_microfacet_per_group():

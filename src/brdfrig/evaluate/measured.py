@@ -315,6 +315,8 @@ class CaseResult:
     lighting_estimates : dict
         Relight probe -> the fitter's estimate for that lighting (:func:`brdfrig.fit.relight.lighting_estimate`
         of the fit's report); empty for a model relit from ``auto``'s candidates.
+    lighting_estimate_details : dict
+        Relight probe -> how that estimate was obtained (its method and detail, with the numbers it combined).
     cpu_seconds : float or None
         Process CPU time of the fit (all threads; less sensitive to other jobs than the wall clock).
     failure : str or None
@@ -334,6 +336,7 @@ class CaseResult:
     held_out: bool
     estimate_method: str = ""
     lighting_estimates: dict[str, float | None] = field(default_factory=dict)
+    lighting_estimate_details: dict[str, str] = field(default_factory=dict)
     cpu_seconds: float | None = None
     failure: str | None = None
     relit: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
@@ -385,11 +388,14 @@ def _relight(truth: Truth, brdfs: dict) -> dict[str, tuple[dict[str, float], dic
     return out
 
 
-def _lighting_estimates(truth: Truth, report: dict) -> dict[str, float | None]:
-    """Relight probe -> :func:`brdfrig.fit.relight.lighting_estimate` of the fit under it."""
+def _lighting_estimates(truth: Truth, report: dict) -> dict[str, dict]:
+    """The :class:`CaseResult` fields ``lighting_estimates`` and ``lighting_estimate_details``: relight probe ->
+    :func:`brdfrig.fit.relight.lighting_estimate` of the fit under it, and how it was obtained."""
     from brdfrig.fit.relight import lighting_estimate
 
-    return {probe: lighting_estimate(report, env, truth.normals, truth.weights).value for probe, (env, _) in truth.relight.items()}
+    est = {probe: lighting_estimate(report, env, truth.normals, truth.weights) for probe, (env, _) in truth.relight.items()}
+    return {"lighting_estimates": {p: e.value for p, e in est.items()},
+            "lighting_estimate_details": {p: f"{e.method}: {e.detail}" for p, e in est.items()}}
 
 
 def _default_fit(scenes, model, material: str):
@@ -421,7 +427,7 @@ def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int =
     estimate, method = reported_estimate(report)
     return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
                       float(noise), errors, seconds, estimate, truth.material.held_out,
-                      estimate_method=method, lighting_estimates=_lighting_estimates(truth, report), cpu_seconds=cpu,
+                      estimate_method=method, **_lighting_estimates(truth, report), cpu_seconds=cpu,
                       relit=relit)
 
 
@@ -445,7 +451,7 @@ def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int =
         mat = truth.material
         out["auto"] = CaseResult(mat.name, "auto", report["chosen_model"], truth.setup.scenes, float(noise), errors,
                                  seconds, estimate, mat.held_out, estimate_method=method,
-                                 lighting_estimates=_lighting_estimates(truth, report), cpu_seconds=cpu, relit=relit)
+                                 **_lighting_estimates(truth, report), cpu_seconds=cpu, relit=relit)
         for name in brdfs:
             cand = report["candidates"].get(name, {})
             estimate, method = reported_estimate(cand)

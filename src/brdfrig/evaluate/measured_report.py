@@ -283,6 +283,7 @@ def result_to_json(result: MeasuredResult) -> dict:
     cases = [{"material": c.material, "model": c.model, "chosen_model": c.chosen_model, "scenes": c.scenes,
               "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds, "cpu_seconds": c.cpu_seconds,
               "estimate": c.estimate, "estimate_method": c.estimate_method, "lighting_estimates": c.lighting_estimates,
+              "lighting_estimate_details": c.lighting_estimate_details,
               "failure": c.failure} for c in result.cases]
     return {"setup": setup_to_json(s, result.scene_counts, result.noises, result.models, result.seed),
             "materials": [{"name": m.name, "path": str(m.path) if m.path else None, "held_out": m.held_out}
@@ -304,6 +305,7 @@ def result_from_json(data: dict) -> MeasuredResult:
                         {k: (math.nan if v is None else v) for k, v in c["errors"].items()},
                         math.nan if c["fit_seconds"] is None else c["fit_seconds"], c["estimate"], c["held_out"],
                         estimate_method=c.get("estimate_method", ""), lighting_estimates=c.get("lighting_estimates", {}),
+                        lighting_estimate_details=c.get("lighting_estimate_details", {}),
                         cpu_seconds=c.get("cpu_seconds"),
                         failure=c.get("failure")) for c in data["cases"]]
     done = {c.material for c in cases}
