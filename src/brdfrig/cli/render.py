@@ -95,6 +95,5 @@ def run(args) -> int:
     else:
         print(f"wrote {out}")
         if estimate is not None and estimate.value is not None:
-            print(f"estimated relighting error under this lighting: {100 * estimate.value:.2g}% ({estimate.method}: "
-                  f"{estimate.detail})")
+            print(f"estimated relighting error under this lighting: {100 * estimate.value:.2g}% ({estimate.how})")
     return 0

@@ -395,7 +395,7 @@ def _lighting_estimates(truth: Truth, report: dict) -> dict[str, dict]:
 
     est = {probe: lighting_estimate(report, env, truth.normals, truth.weights) for probe, (env, _) in truth.relight.items()}
     return {"lighting_estimates": {p: e.value for p, e in est.items()},
-            "lighting_estimate_details": {p: f"{e.method}: {e.detail}" for p, e in est.items()}}
+            "lighting_estimate_details": {p: e.how for p, e in est.items()}}
 
 
 def _default_fit(scenes, model, material: str):

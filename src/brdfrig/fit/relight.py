@@ -251,8 +251,7 @@ def across_lightings(loso: RelightEstimate, spread: RelightEstimate | None) -> R
     if spread is None or spread.value is None or loso.value is None:
         return loso
     return RelightEstimate(math.hypot(loso.value, spread.value), ACROSS,
-                           f"sqrt(l^2 + s^2) of l = {loso.value:.3g} ({loso.method}: {loso.detail}) and "
-                           f"s = {spread.value:.3g} ({spread.method}: {spread.detail})")
+                           f"sqrt(l^2 + s^2) of l = {loso.value:.3g} ({loso.how}) and s = {spread.value:.3g} ({spread.how})")
 
 
 def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weights: np.ndarray) -> RelightEstimate:

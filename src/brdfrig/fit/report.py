@@ -70,6 +70,11 @@ class RelightEstimate:
     method: str
     detail: str = ""
 
+    @property
+    def how(self) -> str:
+        """``"method: detail"``: how the estimate was obtained, as reports and the benchmark print it."""
+        return f"{self.method}: {self.detail}"
+
 
 @dataclass
 class Candidate:
@@ -260,7 +265,7 @@ def format_report(report: FitReport) -> list[str]:
     lines.append(f"model: {report.chosen_model} ({report.reason})")
     rel = report.relight
     if rel is not None and rel.value is not None:
-        lines.append(f"estimated relighting error under other lighting: {_pct(rel.value)} ({rel.method}: {rel.detail})")
+        lines.append(f"estimated relighting error under other lighting: {_pct(rel.value)} ({rel.how})")
         for name, key, what in (("bivariate+measured", "resampled_tables", "the references' resampled tables"),
                                 (report.chosen_model, "fold_spread", "the fit's refits on the folds")):
             if key in ((report.candidates.get(name) or Candidate(name)).fit_report or {}):
