@@ -184,6 +184,14 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     assert html.escape(format_table(result_from_json(data))) in page
     # the JSON read back prints the same table
     assert format_table(result_from_json(data)) in text
+    # every fit is kept as a BRDF file with its report: read back and relit under ennis it gives the recorded
+    # error, and auto's report gives the recorded estimate for that lighting
+    _check_kept_fits(out, data, probes)
+    rendered = tmp_path / "kept.exr"
+    assert main(["render", str(out / auto["fit_file"]), "--lighting", str(probes / "ennis.hdr"), "--size", "16",
+                 "-o", str(rendered)]) == 0
+    capsys.readouterr()
+    assert rendered.stat().st_size > 0
     # a second run, on two Dask worker processes, reads every ground truth from the cache and fits (diffuse
     # alone) to the same numbers as this process did
     assert main([a if a != "auto,diffuse" else "diffuse" for a in argv] + ["--workers", "2"]) == 0
@@ -193,6 +201,25 @@ def test_cli_two_materials_writes_table_pngs_and_json(probes, tmp_path, capsys):
     assert again["workers"] == 2 and again["phases_seconds"]["CPU, all threads"] > 0
     first = {c["material"]: c["errors"]["ennis"] for c in data["cases"] if c["model"] == "diffuse"}
     assert {c["material"]: c["errors"]["ennis"] for c in again["cases"]} == first
+
+
+def _check_kept_fits(out: Path, data: dict, probes: Path) -> None:
+    """Each case of ``data`` (a 16 px, 16-row run relit under ennis) names its BRDF file under ``out/fits``; the
+    file, read back and relit, reproduces the recorded error (and auto's the recorded estimate) to 1e-9."""
+    from brdfrig.evaluate.measured import find_materials
+    from brdfrig.fit.brdffile import load_brdf
+    from brdfrig.fit.relight import lighting_estimate
+
+    setup = CaseSetup(size=16, env_rows=16, relight_probes=("ennis",), probe_dir=probes)
+    for case in data["cases"]:
+        assert case["fit_file"].startswith(f"fits/{case['material']}/{case['model']}-1scene-noise0")
+        truth = render_truth(find_materials([case["material"]])[0], setup, make_cache(out / "gt-cache"))
+        env, reference = truth.relight["ennis"]
+        brdf, report = load_brdf(out / case["fit_file"])
+        assert _rms(brdf.predict(env, truth.normals), reference, truth.weights) == pytest.approx(case["errors"]["ennis"], rel=1e-9)
+        if case["model"] == "auto":
+            estimate = lighting_estimate(report, env, truth.normals, truth.weights).value
+            assert estimate == pytest.approx(case["lighting_estimates"]["ennis"], rel=1e-9)
 
 
 def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probes, tmp_path, capsys):

@@ -69,6 +69,8 @@ __all__ = [
     "render_truth",
     "fit_and_relight",
     "fit_all_and_relight",
+    "fit_path",
+    "FITS_DIR",
     "failed_case",
     "relight_case",
     "main",
@@ -86,6 +88,8 @@ TILT_DEG = (45.0, -45.0, 90.0)
 """Tilts (degrees about +x) of the second, third and fourth scenes of the "tilts" arrangement."""
 ARRANGEMENTS = ("turns", "tilts")
 """How the scenes after the first light the sphere (see the module docstring)."""
+FITS_DIR = "fits"
+"""Subdirectory of a run's output where each case's fitted BRDF is kept (:func:`fit_path`)."""
 MATERIAL_SUFFIXES = (".h5", ".binary")
 
 
@@ -321,6 +325,9 @@ class CaseResult:
         Process CPU time of the fit (all threads; less sensitive to other jobs than the wall clock).
     failure : str or None
         Why the fit raised (then the errors are NaN).
+    fit_file : str or None
+        The fitted BRDF's file (:mod:`brdfrig.fit.brdffile`, with its report), relative to the run's output
+        directory (:func:`fit_path`); None where the run kept no files.
     relit : dict
         Relight probe -> (N, 3) relit radiance (not written to JSON).
     """
@@ -339,6 +346,7 @@ class CaseResult:
     lighting_estimate_details: dict[str, str] = field(default_factory=dict)
     cpu_seconds: float | None = None
     failure: str | None = None
+    fit_file: str | None = None
     relit: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
@@ -415,12 +423,37 @@ def _timed_fit(truth: Truth, model: str, noise: float, seed: int, fit):
     return result, report, seconds, cpu
 
 
-def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int = 0, fit=None) -> CaseResult:
+def fit_path(material: str, model: str, scenes: int, arrangement: str, noise: float) -> Path:
+    """Where a run keeps one case's fitted BRDF, relative to its output directory:
+    ``fits/GROUP/NAME/MODEL-<k>scene|<k>turns|<k>tilts-noise<sigma>.brdf.json``."""
+    kind = "scene" if scenes == 1 else arrangement
+    return Path(FITS_DIR, *material.split("/"), f"{model}-{scenes}{kind}-noise{noise:g}.brdf.json")
+
+
+def _keep(keep: Path | None, truth: Truth, model: str, noise: float, seed: int, brdf, report: dict) -> str | None:
+    """Write one case's fitted ``brdf`` and its ``report`` as a BRDF file under the output directory ``keep``
+    (:func:`fit_path`); the path relative to ``keep`` (None, and nothing written, without ``keep``)."""
+    if keep is None:
+        return None
+    from brdfrig.fit.brdffile import save_brdf
+
+    s = truth.setup
+    rel = fit_path(truth.material.name, model, s.scenes, s.arrangement, noise)
+    (Path(keep) / rel).parent.mkdir(parents=True, exist_ok=True)
+    save_brdf(Path(keep) / rel, brdf, report, provenance={
+        "command": "brdfrig bench --measured", "model": model, "material": truth.material.name,
+        "material_file": str(truth.material.path), "fit_probe": s.fit_probe, "scenes": s.scenes,
+        "arrangement": s.arrangement, "size": s.size, "env_rows": s.env_rows, "noise": noise, "seed": seed})
+    return rel.as_posix()
+
+
+def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int = 0, fit=None,
+                    keep: Path | None = None) -> CaseResult:
     """Fit ``model`` to the truth's scenes (with ``noise``) and relight it under every relight probe.
 
     ``fit`` : callable ``(scenes, model) -> FitResult`` (default :func:`brdfrig.fit.fitter.fit_brdf`
     without progress bars, the material itself left out of the reference tables of ``bivariate+measured``);
-    only it is timed.
+    only it is timed.  ``keep``: the run's output directory, where the fit is written (:func:`fit_path`).
     """
     result, report, seconds, cpu = _timed_fit(truth, model, noise, seed, fit)
     errors, relit = _relight(truth, {model: result.brdf})[model]
@@ -428,16 +461,19 @@ def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int =
     return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
                       float(noise), errors, seconds, estimate, truth.material.held_out,
                       estimate_method=method, **_lighting_estimates(truth, report), cpu_seconds=cpu,
-                      relit=relit)
+                      fit_file=_keep(keep, truth, model, noise, seed, result.brdf, report), relit=relit)
 
 
-def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int = 0) -> list[CaseResult]:
+def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int = 0,
+                        keep: Path | None = None) -> list[CaseResult]:
     """One result per model in ``models``, from ONE ``auto`` fit where possible.
 
     ``auto`` fits every candidate on the same pixels (:attr:`brdfrig.fit.fitter.FitResult.brdfs`): a
     model among them is relit from that fit, its ``fit_seconds`` being the candidate's own fit time
     (the report's ``seconds``; auto's shared stages left out; ``cpu_seconds`` None) and its estimate
     the candidate's own.  A model auto did not fit (e.g. skipped as undetermined) is fitted alone.
+    ``keep``: the run's output directory, where each fit is written (:func:`fit_path`; a candidate's file
+    holds its entry of auto's report).
     """
     models = tuple(models)
     out: dict[str, CaseResult] = {}
@@ -451,17 +487,18 @@ def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int =
         mat = truth.material
         out["auto"] = CaseResult(mat.name, "auto", report["chosen_model"], truth.setup.scenes, float(noise), errors,
                                  seconds, estimate, mat.held_out, estimate_method=method,
-                                 **_lighting_estimates(truth, report), cpu_seconds=cpu, relit=relit)
-        for name in brdfs:
+                                 **_lighting_estimates(truth, report), cpu_seconds=cpu,
+                                 fit_file=_keep(keep, truth, "auto", noise, seed, result.brdf, report), relit=relit)
+        for name, brdf in brdfs.items():
             cand = report["candidates"].get(name, {})
             estimate, method = reported_estimate(cand)
             errors, relit = relights[name]
             out[name] = CaseResult(mat.name, name, name, truth.setup.scenes, float(noise), errors,
                                    float(cand.get("seconds", math.nan)), estimate, mat.held_out, estimate_method=method,
-                                   relit=relit)
+                                   fit_file=_keep(keep, truth, name, noise, seed, brdf, cand), relit=relit)
     for name in models:
         if name not in out:
-            out[name] = fit_and_relight(truth, name, noise=noise, seed=seed)
+            out[name] = fit_and_relight(truth, name, noise=noise, seed=seed, keep=keep)
     return [out[m] for m in models]
 
 

@@ -284,7 +284,7 @@ def result_to_json(result: MeasuredResult) -> dict:
               "noise": c.noise, "held_out": c.held_out, "errors": c.errors, "fit_seconds": c.fit_seconds, "cpu_seconds": c.cpu_seconds,
               "estimate": c.estimate, "estimate_method": c.estimate_method, "lighting_estimates": c.lighting_estimates,
               "lighting_estimate_details": c.lighting_estimate_details,
-              "failure": c.failure} for c in result.cases]
+              "failure": c.failure, "fit_file": c.fit_file} for c in result.cases]
     return {"setup": setup_to_json(s, result.scene_counts, result.noises, result.models, result.seed),
             "materials": [{"name": m.name, "path": str(m.path) if m.path else None, "held_out": m.held_out}
                           for m in result.materials],
@@ -307,7 +307,7 @@ def result_from_json(data: dict) -> MeasuredResult:
                         estimate_method=c.get("estimate_method", ""), lighting_estimates=c.get("lighting_estimates", {}),
                         lighting_estimate_details=c.get("lighting_estimate_details", {}),
                         cpu_seconds=c.get("cpu_seconds"),
-                        failure=c.get("failure")) for c in data["cases"]]
+                        failure=c.get("failure"), fit_file=c.get("fit_file")) for c in data["cases"]]
     done = {c.material for c in cases}
     materials = [Material(m["name"], None, None, m["held_out"]) for m in data["materials"] if m["name"] in done]
     cache = data.get("cache", {})

@@ -5,7 +5,8 @@ cache), then every noise level is fitted (materials in a fixed random order, so
 that the results so far, written to ``checkpoint``, and the progress bar's ETA are
 a fair sample of the whole run): one ``auto`` fit
 gives every candidate model (:func:`brdfrig.evaluate.measured.fit_all_and_relight`),
-models it did not fit are fitted alone (fitter failures are recorded as failed cases).  One untimed warm-up fit of
+models it did not fit are fitted alone (fitter failures are recorded as failed cases); each fit is written as a
+BRDF file under the output directory (:func:`brdfrig.evaluate.measured.fit_path`).  One untimed warm-up fit of
 every model on a small subset of the first material's pixels runs in each process before its first timed fit
 (numba kernels load, tables get built).  With ``workers`` > 1 the materials are shared out to Dask worker
 processes of a local cluster (:func:`run_measured_benchmark`).  A run interrupted after some materials is
@@ -108,10 +109,10 @@ def _warm_up(truth: Truth, models) -> None:
     fit_all_and_relight(small, models)
 
 
-def _robust(truth: Truth, model: str, noise: float, seed: int, fit=None) -> CaseResult:
+def _robust(truth: Truth, model: str, noise: float, seed: int, keep: Path | None) -> CaseResult:
     """:func:`fit_and_relight`, a fit that raises recorded as a failed case (the run goes on)."""
     try:
-        return fit_and_relight(truth, model, noise=noise, seed=seed, fit=fit)
+        return fit_and_relight(truth, model, noise=noise, seed=seed, keep=keep)
     except Exception as exc:  # noqa: BLE001 - any model's bug must not end a long run; it is reported
         return failed_case(truth, model, noise, exc)
 
@@ -123,12 +124,12 @@ def _robust_peer(truth: Truth, model: str, noise: float, seed: int, peer_case) -
         return failed_case(truth, model, noise, exc)
 
 
-def _robust_all(truth: Truth, models, noise: float, seed: int) -> list[CaseResult]:
+def _robust_all(truth: Truth, models, noise: float, seed: int, keep: Path | None) -> list[CaseResult]:
     """:func:`fit_all_and_relight`, falling back to one fit per model when it raises."""
     try:
-        return fit_all_and_relight(truth, models, noise=noise, seed=seed)
+        return fit_all_and_relight(truth, models, noise=noise, seed=seed, keep=keep)
     except Exception:  # noqa: BLE001
-        return [_robust(truth, m, noise, seed) for m in models]
+        return [_robust(truth, m, noise, seed, keep) for m in models]
 
 
 @dataclass
@@ -152,9 +153,10 @@ def _phase_keys(count: int) -> tuple[str, str]:
 
 
 def _run_material(material: Material, setup: CaseSetup, models: tuple, noises: tuple, seed: int, cache_dir: Path | None,
-                  peer: str | None, warm_up: bool, threads: int | None = None) -> _MaterialRun:
+                  peer: str | None, warm_up: bool, keep: Path | None, threads: int | None = None) -> _MaterialRun:
     """One material's ground truth (rendered or from the cache) and its fits at every noise level (and the peer's,
-    one scene only).  ``threads``: numba threads of this process (a Dask worker's share of the cores)."""
+    one scene only).  ``keep``: the output directory the fits are written to (None: not kept);
+    ``threads``: numba threads of this process (a Dask worker's share of the cores)."""
     if threads is not None:
         import numba
 
@@ -177,7 +179,7 @@ def _run_material(material: Material, setup: CaseSetup, models: tuple, noises: t
     t0 = time.perf_counter()
     cases = []
     for noise in noises:
-        cases += _robust_all(truth, models, noise, seed)
+        cases += _robust_all(truth, models, noise, seed, keep)
         if peer and setup.scenes == 1:  # the peer fits one image
             cases.append(_robust_peer(truth, PEER_PREFIX + peer, noise, seed, _peer_fit(peer)))
     phases[fit_key] = time.perf_counter() - t0
@@ -188,13 +190,15 @@ def _run_material(material: Material, setup: CaseSetup, models: tuple, noises: t
 def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup = CaseSetup(), *,
                            scene_counts=(1,), noises=(0.0,), seed: int = 0, cache_dir: Path | None = None,
                            peer: str | None = None, progress: bool = True, warm_up: bool = True,
-                           checkpoint=None, workers: int = 1, resume: MeasuredResult | None = None) -> MeasuredResult:
+                           checkpoint=None, workers: int = 1, resume: MeasuredResult | None = None,
+                           keep: Path | None = None) -> MeasuredResult:
     """Run every case (see module docstring).  ``setup.scenes`` is replaced by each of ``scene_counts``;
     ``warm_up=False`` skips the untimed warm-up fits; ``checkpoint(result)`` (if given) is called after
     each material's fits with the cases so far.  ``workers`` > 1: the materials are run by that many Dask worker
     processes on this machine (a local cluster), each with its share of the cores as numba threads.
     ``resume``: an earlier session's result of the same run (:func:`~brdfrig.evaluate.measured_report.load_partial`):
-    its cases, times and cache counts are kept and its material runs are not run again."""
+    its cases, times and cache counts are kept and its material runs are not run again.  ``keep``: an output
+    directory where each case's fitted BRDF is written (:func:`~brdfrig.evaluate.measured.fit_path`; None: not kept)."""
     import os
     import sys
 
@@ -244,7 +248,7 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
         if checkpoint is not None:
             checkpoint(result)
 
-    args = (models, tuple(noises), seed, cache_dir, peer, warm_up)
+    args = (models, tuple(noises), seed, cache_dir, peer, warm_up, keep)
     if workers == 1:
         for s, m in jobs:
             done(_run_material(m, s, *args))
@@ -295,7 +299,7 @@ def run_from_args(args) -> int:
     result = run_measured_benchmark(materials, models, setup, scene_counts=tuple(args.scenes), noises=tuple(args.noise),
                                     seed=args.seed, cache_dir=args.cache or out / "gt-cache", peer=args.peer,
                                     progress=not args.no_progress, warm_up=not args.no_warm_up,
-                                    checkpoint=lambda r: write_partial(r, out), workers=args.workers, resume=resume)
+                                    checkpoint=lambda r: write_partial(r, out), workers=args.workers, resume=resume, keep=out)
     print(format_report(result), flush=True)
     for path in write_outputs(result, out):
         print(f"wrote {path.resolve()}")
