@@ -292,6 +292,24 @@ def test_lighting_estimate_of_several_scenes_from_the_refits_on_the_folds(synthe
         lighting_estimate(report | {"chosen_model": "bivariate+blend", "candidates": uneven}, test_env, scenes[0].normals, scenes[0].weights)
 
 
+def test_lighting_estimate_of_one_image_from_the_resampled_tables(synthetic_references):
+    """Resampled tables (1 + a_b) T predict (1 + a_b) times one radiance under any lighting: their relative spread is
+    rms(a - mean a) / (1 + mean a), so the estimate is sqrt(e k s) (closed form), under the fit's lighting and another."""
+    from brdfrig.fit.relight import FOR_LIGHTING, RESAMPLE_CALIBRATION, lighting_estimate
+
+    scenes, test_env = _one_scene(24)
+    table = np.moveaxis(synthetic_references.tables[1], 0, 1)  # (C, 2, nh, nd) of 'rough'
+    a = np.array([-0.05, 0.02, 0.11, -0.03])
+    e = 0.03
+    report = {"relight": {"value": e, "method": "held-out pixels", "detail": "test"}, "chosen_model": "bivariate+measured",
+              "candidates": {"bivariate+measured": {"fit_report": {"resampled_tables": np.stack([table * (1 + x) for x in a]).tolist()}}}}
+    s = math.sqrt(np.mean((a - a.mean()) ** 2)) / (1 + a.mean())
+    for env in (scenes[0].env, test_env):
+        est = lighting_estimate(report, env, scenes[0].normals, scenes[0].weights)
+        assert est.method == FOR_LIGHTING
+        assert est.value == pytest.approx(math.sqrt(e * RESAMPLE_CALIBRATION * s), rel=1e-9)
+
+
 def test_several_scene_fit_keeps_its_refits_on_the_folds(synthetic_references, tmp_path):
     """A three-scene bivariate+measured fit keeps the table refitted on each fold and their spread over the left-out
     pixels: the spread recomputed from the kept tables on every pixel of each scene (BivariateBRDF.predict) agrees

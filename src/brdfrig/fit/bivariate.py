@@ -687,20 +687,21 @@ def _resample_references(problems: list[_Channel], lams: list[float], references
     return out
 
 
-def tables_spread(tables, env: Environment, normals, weights) -> float:
-    """Relative RMS spread of several tables' radiance about their mean under ``env``
-    (:func:`brdfrig.fit.metrics.relative_spread`).
+def tables_spread(parts, env: Environment, normals, weights) -> float:
+    """Relative RMS spread about their mean (:func:`brdfrig.fit.metrics.relative_spread`) of B radiances under
+    ``env``, the b-th of which is ``sum_p w_p x radiance(tables_p[b])`` (:func:`predict_tables`, one pass).
 
-    ``tables`` (B, C, 2, nh, nd): node values of B tables (a fit report's ``resampled_tables``);
-    ``normals`` (N, 3) unit sphere normals (view ``v = (0, 0, 1)``) and ``weights`` (N,) pixel weights.  The design
-    uses the fit's quadrature (:data:`FIT_CONE_DEG`, :data:`FIT_SUBDIV`).
+    ``parts``: ``(w_p, tables_p)`` pairs, ``tables_p`` (B, C, 2, nh_p, nd_p) node values (a fit report's
+    ``resampled_tables`` with weight 1, or each blend part's ``fold_tables`` with its blend weight); ``normals``
+    (N, 3) unit sphere normals (view ``v = (0, 0, 1)``) and ``weights`` (N,) pixel weights.
     """
-    tables = np.asarray(tables, dtype=np.float64)
-    b, channels, _, nh, nd = tables.shape
-    if env.channels != channels:
-        raise ValueError(f"the tables have {channels} channels but the environment has {env.channels}")
-    design = _design(lobe_quadrature(env, cone_deg=FIT_CONE_DEG, subdiv=FIT_SUBDIV), normals, nh, nd)
-    return relative_spread(np.einsum("nkc,bck->bnc", design, tables.reshape(b, channels, 2 * nh * nd)), weights)
+    parts = [(float(w), np.asarray(t, dtype=np.float64)) for w, t in parts]
+    count = {len(t) for _, t in parts}
+    if len(count) != 1:
+        raise ValueError(f"every part needs the same number of tables, got {sorted(count)}")
+    b = count.pop()
+    radiance = predict_tables([BivariateBRDF(x[:, 0], x[:, 1]) for _, t in parts for x in t], env, normals)
+    return relative_spread(sum(w * np.stack(radiance[i * b:(i + 1) * b]) for i, (w, _) in enumerate(parts)), weights)
 
 
 def _solve_tables(problems: list[_Channel], grid: tuple[float, ...], monotone: bool | None, transform: np.ndarray, norm: float):

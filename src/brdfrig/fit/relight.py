@@ -61,7 +61,7 @@ from scipy.optimize import nnls
 
 from brdfrig.fit.bivariate import BivariateBRDF, predict_tables, tables_spread
 from brdfrig.fit.blend import BlendBRDF
-from brdfrig.fit.metrics import relative_rms, relative_spread
+from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.rotation import axis_rotation
@@ -101,9 +101,10 @@ one-image estimate answers for ennis)."""
 RESAMPLE_CALIBRATION = 3.8
 """``k`` of :func:`lighting_estimate`, ``sqrt(e k s_L)``: the mean of ``2 log err - log e - log s_L`` over the 51 rgl
 measured materials (one scene, 96 px, fit under grace, noise-free) relit under ennis and under grace turned 180
-degrees, exponentiated (a free log-linear fit gives ``err ~ e^0.50 s^0.56``: the geometric mean).  The estimate is
-within 2x of the error under ennis on 52 of the 59 materials (6 of the 8 held-out nielsen ones) and under grace
-turned on 47 (6 of 8), against 52 and 26 for ``e`` alone (docs/DESIGN.md, History)."""
+degrees, exponentiated (a free log-linear fit gives ``err ~ e^0.50 s^0.56``: the geometric mean), on the fits it was
+set on; the same procedure on the fits of the latest one-scene run gives 3.55, with the same counts.  The estimate is
+within 2x of the error under ennis on 51 of the 59 materials (6 of the 8 held-out nielsen ones) and under grace
+turned on 46 (6 of 8), against 52 and 27 for ``e`` alone (docs/DESIGN.md, History)."""
 SPREAD = "rotated-lighting spread"
 LOSO = "leave-one-scene-out"
 ACROSS = "leave-one-scene-out and rotated-lighting spread"
@@ -293,7 +294,7 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
     normals, weights = np.asarray(normals)[rows], np.asarray(weights)[rows]
     if resampled is not None:
         tables = _node_values(resampled, "resampled_tables of bivariate+measured")
-        s, k = tables_spread(tables, env, normals, weights), RESAMPLE_CALIBRATION
+        s, k = tables_spread([(1.0, tables)], env, normals, weights), RESAMPLE_CALIBRATION
         return RelightEstimate(math.sqrt(e * k * s), FOR_LIGHTING,
                                f"sqrt(e x {k:g} s) of e = {e:.3g} ({standing.method}) and the spread s = {s:.3g} "
                                f"of {len(tables)} bivariate+measured tables re-solved on resampled references, under this lighting")
@@ -305,9 +306,7 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
     if s0 == 0:
         return standing
     f = len(next(iter(folds.values())))
-    radiance = predict_tables([BivariateBRDF(t[:, 0], t[:, 1]) for m in parts for t in folds[m]], env, normals)  # one pass
-    preds = sum(w * np.stack(radiance[i * f:(i + 1) * f]) for i, w in enumerate(parts.values()))
-    s = relative_spread(preds, weights)
+    s = tables_spread([(w, folds[m]) for m, w in parts.items()], env, normals, weights)
     return RelightEstimate(e * s / (math.sqrt(f) * s0), FOLDS_FOR_LIGHTING,
                            f"e s / (sqrt({f}) s0) of e = {e:.3g} ({standing.method}), the spread s = {s:.3g} of the fit "
                            f"refitted on {f} folds under this lighting and s0 = {s0:.3g} over the left-out pixels")
