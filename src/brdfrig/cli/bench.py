@@ -15,8 +15,9 @@ others; one and twelve turned scenes, noise-free and 1% noise (choose with
 worst), fit times, PNGs of the errors and of the worst five, JSON, report.html.
 Every fit is kept as a BRDF file with its report (brdfrig render takes it), in
 OUT/fits/GROUP/NAME/MODEL-<k>scene|turns|tilts-noise<sigma>.brdf.json; the JSON
-names each case's file. After each material the cases so far go to OUT/measured.partial.json; --resume
-continues an interrupted run from it (the same options).
+names each case's file. After each material the cases so far go to
+OUT/measured.partial.json; --resume continues an interrupted run from it (the
+same options).
 
 Ground-truth renders are cached in OUT/gt-cache, keyed by every input and the
 renderer's source, so a second run skips them and a changed input or renderer

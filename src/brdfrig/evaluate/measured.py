@@ -439,8 +439,9 @@ def _keep(keep: Path | None, truth: Truth, model: str, noise: float, seed: int, 
 
     s = truth.setup
     rel = fit_path(truth.material.name, model, s.scenes, s.arrangement, noise)
-    (Path(keep) / rel).parent.mkdir(parents=True, exist_ok=True)
-    save_brdf(Path(keep) / rel, brdf, report, provenance={
+    path = Path(keep) / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_brdf(path, brdf, report, provenance={
         "command": "brdfrig bench --measured", "model": model, "material": truth.material.name,
         "material_file": str(truth.material.path), "fit_probe": s.fit_probe, "scenes": s.scenes,
         "arrangement": s.arrangement, "size": s.size, "env_rows": s.env_rows, "noise": noise, "seed": seed})
