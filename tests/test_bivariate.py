@@ -269,3 +269,38 @@ def test_tables_of_different_grids_predicted_together_equal_each_alone(envs):
         assert pred.shape == (len(normals), 3) and relative_rms(pred, alone) < 1e-12
     assert relative_rms(together[1], Lambertian([0.6, 0.4, 0.2]).predict(test_env, normals)) < 1e-3
     assert predict_tables([], test_env, normals) == []
+
+
+def test_a_lighting_and_pixels_seen_again_are_predicted_from_their_kept_design(envs, monkeypatch):
+    """The same lighting, pixels and grid seen a second time keep their design, and later predictions come from
+    it: equal to the quadrature pass of the first sight to 1e-12 relative (tables of two grids in one call, in
+    either order), the constant table equal to the analytic Lambertian to 1e-3.  Other pixels or another
+    lighting are not served from it, and a budget too small for any design keeps none and changes nothing."""
+    from collections import OrderedDict
+
+    from brdfrig.fit import bivariate
+    from brdfrig.fit.analytic import Lambertian
+
+    fit_env, test_env = envs
+    normals = _sphere_normals(24)
+    rng = np.random.default_rng(4)
+    albedo = np.array([0.6, 0.4, 0.2])
+    lambertian = BivariateBRDF(np.broadcast_to((albedo / math.pi)[:, None, None], (3, 32, 12)))
+    brdfs = [BivariateBRDF(rng.random((3, 24, 8))), lambertian, BivariateBRDF(rng.random((3, 24, 8)), rng.random((3, 24, 8)))]
+    for budget, kept in ((bivariate.DESIGN_CACHE_BYTES, 2), (0, 0)):
+        monkeypatch.setattr(bivariate, "_designs", OrderedDict())
+        monkeypatch.setattr(bivariate, "_designs_seen", OrderedDict())
+        monkeypatch.setattr(bivariate, "DESIGN_CACHE_BYTES", budget)
+        first = bivariate.predict_tables(brdfs, test_env, normals)
+        assert len(bivariate._designs) == 0
+        second = bivariate.predict_tables(brdfs, test_env, normals)
+        assert len(bivariate._designs) == kept
+        third = bivariate.predict_tables(brdfs[::-1], test_env, normals)[::-1]
+        for a, b, c in zip(first, second, third):
+            assert relative_rms(b, a) < 1e-12 and relative_rms(c, a) < 1e-12
+        assert relative_rms(third[1], Lambertian(albedo).predict(test_env, normals)) < 1e-3
+        for env, pixels in ((test_env, normals[::2]), (fit_env, normals)):
+            for _ in range(3):
+                other = bivariate.predict_tables([lambertian], env, pixels)[0]
+                assert relative_rms(other, Lambertian(albedo).predict(env, pixels)) < 1e-3
+        assert len(bivariate._designs) == 2 * kept

@@ -46,7 +46,6 @@ Search bounds: ``alpha`` in :data:`ALPHA_BOUNDS`, fuzz alpha in :data:`FUZZ_ALPH
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from collections import OrderedDict
@@ -65,7 +64,7 @@ from brdfrig.fit.analytic import (
 )
 from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
-from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
+from brdfrig.fit.quadrature import content_digest, lobe_quadrature, lobe_samples
 from brdfrig.fit.microfacet import _check_scenes, _oren_nayar, _subsample, coarsen_environment
 from brdfrig.fit.pbr import (
     FRESNEL_DEGREE,
@@ -177,19 +176,6 @@ _moments_memo: OrderedDict = OrderedDict()
 """``(geometry digest, alpha, lobe rule, fuzz table bytes)`` -> unweighted lobe moments (:data:`MOMENTS_MEMO` kept)."""
 
 
-def _digest(normals: np.ndarray, env: Environment) -> bytes:
-    """Content digest of pixel normals and a lighting: what the lobe moments depend on besides ``alpha`` and the fuzz table."""
-    h = hashlib.blake2b(digest_size=16)
-    parts = [normals, env.dirs, env.radiance, env.solid_angle]
-    if env.latlong is not None:
-        parts += [env.latlong.image, env.latlong.rotation]
-    for a in parts:
-        a = np.ascontiguousarray(a, dtype=np.float64)
-        h.update(repr(a.shape).encode())
-        h.update(a.tobytes())
-    return h.digest()
-
-
 class _Data:
     """A pixel set's weighted target and the renders shared by every evaluation of the search."""
 
@@ -201,7 +187,7 @@ class _Data:
         self.cos_o = np.concatenate([n[:, 2] for n in self.normals])
         self.hats = np.concatenate([_hat_kernel(*_kernel_inputs(n, e, (0.0, 0.0, 1.0))) for n, e in zip(self.normals, envs)])
         self.hats *= self.sqrt_w[:, None, None, None]
-        self.geometry = [_digest(n, e) for n, e in zip(self.normals, envs)]
+        self.geometry = [content_digest(n, e) for n, e in zip(self.normals, envs)]
         self.renders = 1
         self._quadratures: dict = {}
 
