@@ -89,8 +89,8 @@ from brdfrig.fit.lsq import nnls_normal
 from brdfrig.fit.measured import _local_angles_to_dirs, rusinkiewicz_coordinates, rusinkiewicz_directions
 from brdfrig.fit.metrics import relative_spread
 from brdfrig.fit.microfacet import _check_scenes, _subsample
-from brdfrig.fit.quadrature import LobeQuadrature, content_digest, lobe_quadrature, lobe_samples
-from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.quadrature import LobeQuadrature, lobe_quadrature, lobe_samples
+from brdfrig.fit.scene import Environment, Scene, content_digest
 
 __all__ = ["BivariateBRDF", "fit_bivariate", "predict_tables", "project_to_nodes", "tables_spread", "DEFAULT_NH",
            "DEFAULT_ND", "RESAMPLES"]

@@ -64,7 +64,7 @@ from brdfrig.fit.analytic import (
 )
 from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
-from brdfrig.fit.quadrature import content_digest, lobe_quadrature, lobe_samples
+from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
 from brdfrig.fit.microfacet import _check_scenes, _oren_nayar, _subsample, coarsen_environment
 from brdfrig.fit.pbr import (
     FRESNEL_DEGREE,
@@ -82,7 +82,7 @@ from brdfrig.fit.pbr import (
     sheen_albedo,
     table_values,
 )
-from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.scene import Environment, Scene, content_digest
 
 __all__ = ["FAMILIES", "fit_pbr", "fit_dielectric", "fit_conductor", "fit_sheen", "fresnel_coefficients", "shared_solve"]
 

@@ -28,7 +28,6 @@ tests/test_quadrature.py checks that sub-cells converge on a narrow lobe);
 
 from __future__ import annotations
 
-import hashlib
 import math
 from typing import NamedTuple
 
@@ -42,7 +41,6 @@ __all__ = [
     "DEFAULT_CONE_DEG",
     "DEFAULT_SUBDIV",
     "LobeQuadrature",
-    "content_digest",
     "lobe_quadrature",
     "lobe_samples",
     "lobe_sample_count",
@@ -110,20 +108,6 @@ def _tiers(cone_deg, subdiv) -> tuple[np.ndarray, np.ndarray]:
     cones, subs = cones[order], subs[order].astype(np.int64)
     keep = subs > 1
     return np.cos(np.radians(cones[keep])), np.ascontiguousarray(subs[keep])
-
-
-def content_digest(normals: np.ndarray, env: Environment) -> bytes:
-    """Digest of the content of pixel normals and a lighting (map, rotation, samples): the key of what a
-    render over them can reuse."""
-    h = hashlib.blake2b(digest_size=16)
-    parts = [normals, env.dirs, env.radiance, env.solid_angle]
-    if env.latlong is not None:
-        parts += [env.latlong.image, env.latlong.rotation]
-    for a in parts:
-        a = np.ascontiguousarray(a, dtype=np.float64)
-        h.update(repr(a.shape).encode())
-        h.update(a.tobytes())
-    return h.digest()
 
 
 def lobe_quadrature(env: Environment, cone_deg=DEFAULT_CONE_DEG, subdiv=DEFAULT_SUBDIV) -> LobeQuadrature:

@@ -8,6 +8,7 @@ from ``hdr`` outputs.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,3 +88,17 @@ class Scene:
     normals: np.ndarray
     radiance: np.ndarray
     weights: np.ndarray
+
+
+def content_digest(normals: np.ndarray, env: Environment) -> bytes:
+    """Digest of the content of pixel normals and a lighting (map, rotation, samples): the key of what a
+    render over them can reuse."""
+    h = hashlib.blake2b(digest_size=16)
+    parts = [normals, env.dirs, env.radiance, env.solid_angle]
+    if env.latlong is not None:
+        parts += [env.latlong.image, env.latlong.rotation]
+    for a in parts:
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        h.update(repr(a.shape).encode())
+        h.update(a.tobytes())
+    return h.digest()
