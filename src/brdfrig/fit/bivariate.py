@@ -434,7 +434,11 @@ def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
 
 def _known_design(key: tuple, q: LobeQuadrature, normals: np.ndarray) -> np.ndarray | None:
     """The design (N, 2 nh nd, C) of ``key = (content digest, (nh, nd))`` if seen before (built now on the second
-    sight, kept while :data:`DESIGN_CACHE_BYTES` allows, least recently used dropped first); None on the first."""
+    sight, kept while :data:`DESIGN_CACHE_BYTES` allows, least recently used dropped first); None on the first,
+    and for a design larger than the whole budget (it would be rebuilt at every call and flush the others)."""
+    nh, nd = key[1]
+    if len(normals) * 2 * nh * nd * q.wrad.shape[1] * 8 > DESIGN_CACHE_BYTES:
+        return None
     with _DESIGNS_LOCK:
         if key in _designs:
             _designs.move_to_end(key)
@@ -444,7 +448,7 @@ def _known_design(key: tuple, q: LobeQuadrature, normals: np.ndarray) -> np.ndar
             while len(_designs_seen) > DESIGNS_SEEN:
                 _designs_seen.popitem(last=False)
             return None
-    design = _design_kernel(normals, q, *key[1])
+    design = _design_kernel(normals, q, nh, nd)
     with _DESIGNS_LOCK:
         _designs[key] = design
         while sum(d.nbytes for d in _designs.values()) > DESIGN_CACHE_BYTES:
