@@ -17,6 +17,8 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from brdfrig.fit.scene import hash_arrays
+
 __all__ = ["CachedGroundTruth", "brdf_identity"]
 
 
@@ -82,10 +84,7 @@ class CachedGroundTruth:
         h = hashlib.sha256(self._source_bytes())
         h.update(brdf_identity(brdf) if identity is None else b"id:" + bytes(identity))
         h.update(b"latlong" if getattr(env, "latlong", None) is not None else b"samples")
-        for a in (normals, env.dirs, env.radiance, env.solid_angle, view):
-            a = np.ascontiguousarray(a, dtype=np.float64)
-            h.update(repr(a.shape).encode())
-            h.update(a.tobytes())
+        hash_arrays(h, (normals, env.dirs, env.radiance, env.solid_angle, view))
         return h.hexdigest()
 
     def __call__(self, brdf, normals, env, identity: bytes | None = None) -> np.ndarray:

@@ -97,8 +97,13 @@ def content_digest(normals: np.ndarray, env: Environment) -> bytes:
     parts = [normals, env.dirs, env.radiance, env.solid_angle]
     if env.latlong is not None:
         parts += [env.latlong.image, env.latlong.rotation]
-    for a in parts:
+    hash_arrays(h, parts)
+    return h.digest()
+
+
+def hash_arrays(h, arrays) -> None:
+    """Feed each array's shape and its float64 C-order bytes, in turn, to ``h`` (a :mod:`hashlib` object)."""
+    for a in arrays:
         a = np.ascontiguousarray(a, dtype=np.float64)
         h.update(repr(a.shape).encode())
         h.update(a.tobytes())
-    return h.digest()
