@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from brdfrig.fit.bivariate import BivariateBRDF
-from brdfrig.fit.blend import BlendBRDF, inverse_variance_weights, stacked_weights
+from brdfrig.fit.blend import BlendBRDF, inverse_variance_weights, nested_stacking, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF, brdf_from_dict
 from brdfrig.fit.metrics import relative_rms, relative_spread
 from brdfrig.fit.scene import Scene
@@ -51,6 +51,22 @@ def test_stacked_weights():
         stacked_weights([preds[0]], target, w)
     with pytest.raises(ValueError, match="two or more finite"):
         stacked_weights([preds[0], np.full((50, 3), math.nan)], target, w)
+
+
+def test_nested_stacking():
+    """Each fold gets the weights of the other folds: a target that is one convex combination everywhere is
+    predicted exactly (1e-9); a target that is part 0 on fold 0 and part 1 elsewhere is predicted as part 1
+    on fold 0 (the other folds' weights (0, 1), 1e-9); one fold is refused."""
+    rng = np.random.default_rng(11)
+    preds = [rng.random((60, 3)) for _ in range(2)]
+    w = rng.random(60)
+    fold = np.repeat([0, 1, 2], 20)
+    mix = 0.3 * preds[0] + 0.7 * preds[1]
+    assert np.abs(nested_stacking(preds, mix, w, fold) - mix).max() < 1e-9
+    target = np.where((fold == 0)[:, None], preds[0], preds[1])
+    assert np.abs(nested_stacking(preds, target, w, fold)[:20] - preds[1][:20]).max() < 1e-9
+    with pytest.raises(ValueError, match="two or more folds"):
+        nested_stacking(preds, mix, w, np.zeros(60, dtype=int))
 
 
 def _lambertian_table(albedo, nh: int, nd: int) -> BivariateBRDF:

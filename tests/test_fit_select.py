@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,8 +17,8 @@ import pytest
 from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar
 from brdfrig.fit.brdffile import jsonable, load_brdf, save_brdf
-from brdfrig.fit.fitter import fit_brdf
-from brdfrig.fit.relight import ACROSS, SPREAD_CALIBRATION, across_lightings, loso_folds, other_lightings, predict_under, spread_estimates
+from brdfrig.fit.fitter import BLEND, _blend_or_part, fit_brdf
+from brdfrig.fit.relight import ACROSS, SPREAD_CALIBRATION, LosoPredictions, across_lightings, loso_folds, other_lightings, predict_under, spread_estimates
 from brdfrig.fit.report import Candidate, FitReport, RelightEstimate, format_report
 from brdfrig.fit.select import choose, radiance_problem
 from test_fit_scenes import GGX_MATERIAL, make_scenes, probes, relight_error, rotations, sphere  # noqa: F401
@@ -102,6 +103,29 @@ def test_auto_reports_the_chosen_fit_on_arcs_after_choosing_on_interleaved_folds
     assert reported.value != chosen.value
     for value in (chosen.value, reported.value):
         assert 0.5 * true <= value <= 2.0 * true
+
+
+def _arcs_pass(biases: dict[str, tuple]) -> LosoPredictions:
+    """An arcs pass of three folds of 20 pixels: part m predicts the radiance times ``1 + biases[m][f]`` on fold f."""
+    target = np.random.default_rng(5).random((60, 3)) + 0.5
+    fold = np.repeat([0, 1, 2], 20)
+    preds = {m: target * (1.0 + np.asarray(b)[fold])[:, None] for m, b in biases.items()}
+    return LosoPredictions(target, np.ones(60), preds, "3 arcs", np.arange(60), fold, {})
+
+
+def test_a_chosen_blend_gives_way_to_a_part_that_relights_the_arcs_better():
+    """Part a is 5% high on every arc, part b 5% low on the last two arcs and 50% high on the first.  Stacked on
+    the last two arcs the weights are (1/2, 1/2), which predict the first arc 27.5% high, so the blend's
+    out-of-sample error exceeds a's 5% and a replaces it, with a's arcs error as its estimate (1e-12).  With
+    b 5% low everywhere the blend (1/2, 1/2) is exact out of sample and stays, its estimate untouched."""
+    fitter = SimpleNamespace(entries={BLEND: SimpleNamespace(fit_report={"parts": {"a": 0.5, "b": 0.5}})}, spread={})
+    before = RelightEstimate(0.01, ACROSS, "interleaved")
+    chosen, est, reason = _blend_or_part(fitter, _arcs_pass({"a": (0.05,) * 3, "b": (0.5, -0.05, -0.05)}), before, "r")
+    print(reason)
+    assert chosen == "a" and est.value == pytest.approx(0.05, rel=1e-12) and "replaced by its part a" in reason
+    chosen, est, reason = _blend_or_part(fitter, _arcs_pass({"a": (0.05,) * 3, "b": (-0.05,) * 3}), before, "r")
+    print(reason)
+    assert chosen == BLEND and est is before and "kept against its best part" in reason
 
 
 def test_several_scenes_add_the_spread_to_leave_one_scene_out_in_quadrature():

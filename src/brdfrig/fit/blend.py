@@ -11,7 +11,9 @@ grids, and where they disagree their average relights better than any one of the
       rho = sum_k w_k rho_k,   w_k = e_k^-2 / sum_j e_j^-2
 
 - several scenes: stacking (:func:`stacked_weights`): the convex weights whose combination of the tables'
-  leave-one-scene-out predictions is closest to the left-out pixels.
+  leave-one-scene-out predictions is closest to the left-out pixels.  Those weights are fitted to the pixels
+  they are judged on; :func:`nested_stacking` gives the blend's out-of-sample prediction (weights stacked on
+  the other folds), comparable with a single table's leave-one-scene-out error.
 
 A sum of tables is not a table on one grid (``bivariate+measured`` fits on the reference set's grid, the
 others on the default one; resampling one grid onto the other moved relit spheres by 0.6-9%), so
@@ -31,7 +33,7 @@ from brdfrig.fit.brdf import register_model
 from brdfrig.fit.lsq import polytope_lsq
 from brdfrig.fit.scene import Environment
 
-__all__ = ["BlendBRDF", "PARTS", "inverse_variance_weights", "stacked_weights", "blend_estimate"]
+__all__ = ["BlendBRDF", "PARTS", "inverse_variance_weights", "stacked_weights", "nested_stacking", "blend_estimate"]
 
 PARTS = ("bivariate", "bivariate+prior", "bivariate+measured")
 """The candidates a blend averages: those fitted with finite non-negative radiance and a finite positive estimate
@@ -73,6 +75,31 @@ def stacked_weights(preds, target, weights) -> np.ndarray:
     a = polytope_lsq(cols, ((t - ps[-1]) * sw).ravel(), g, np.r_[np.zeros(k), 1.0])[1]
     a = np.clip(np.r_[a, 1.0 - a.sum()], 0.0, None)
     return a / a.sum()
+
+
+def nested_stacking(preds, target, weights, fold) -> np.ndarray:
+    """(N, C) out-of-sample prediction of the stacked blend: each fold's pixels combined with the weights
+    :func:`stacked_weights` gives on the other folds' pixels.
+
+    Parameters
+    ----------
+    preds : sequence of (N, C) arrays
+        Each part's leave-one-scene-out prediction of the pixels (finite).
+    target, weights : (N, C), (N,) arrays
+        Their radiance and pixel weights, as in :func:`stacked_weights`.
+    fold : (N,) int array
+        Each pixel's fold; two or more folds.
+    """
+    fold = np.asarray(fold)
+    labels = np.unique(fold)
+    if len(labels) < 2:
+        raise ValueError(f"nested stacking needs two or more folds, got {labels.tolist()}")
+    out = np.empty(np.shape(target), dtype=np.float64)
+    for f in labels:
+        test = fold == f
+        a = stacked_weights([p[~test] for p in preds], target[~test], weights[~test])
+        out[test] = sum(x * p[test] for x, p in zip(a, preds))
+    return out
 
 
 @register_model("blend")

@@ -18,7 +18,9 @@ Pipeline (``docs/MATH.md``):
    (:mod:`brdfrig.fit.blend`) is then weighted by their one-image estimates, or stacked on their
    leave-one-scene-out predictions.  ``auto`` (and the blend) compare candidates (weigh the tables) on
    interleaved folds and, with more scenes than folds, report the chosen fit's estimate from folds of
-   consecutive scenes (``"arcs"``); another requested model's estimate is the arcs'.  One-image fits also
+   consecutive scenes (``"arcs"``), where a blend ``auto`` chose gives way to its best part if that part
+   relights the arcs better than the blend with weights stacked on the other arcs; another requested
+   model's estimate is the arcs'.  One-image fits also
    keep ``bivariate+measured``'s tables re-solved on resampled references (its report's ``resampled_tables``),
    several-scene fits the chosen table's (a blend's parts') refits on the folds its estimate came from
    (``fold_tables``, ``fold_spread``): :func:`brdfrig.fit.relight.lighting_estimate` turns them into an estimate
@@ -43,7 +45,7 @@ from threadpoolctl import threadpool_limits
 
 from brdfrig.errors import InputError
 from brdfrig.fit.bivariate import RESAMPLES
-from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights, stacked_weights
+from brdfrig.fit.blend import PARTS, BlendBRDF, blend_estimate, inverse_variance_weights, nested_stacking, stacked_weights
 from brdfrig.fit.brdf import FittedBRDF
 from brdfrig.fit.metrics import relative_rms, relative_spread
 from brdfrig.fit.identifiability import THETA_MAX_DEG, Identifiability, analyse_lighting
@@ -381,6 +383,8 @@ def _fit_brdf(scenes, model, lmax, pmax, solver, progress, max_theta_deg, tol, s
     if estimate and model in ("auto", BLEND) and len(scenes) > LOSO_MAX_FOLDS:  # the two splits differ
         with data.clock("other"):
             relight, folds = _arcs_estimate(data, fitter, chosen, settings, model == "auto")
+            if model == "auto" and chosen == BLEND:
+                chosen, relight, reason = _blend_or_part(fitter, folds, relight, reason)
     if folds is not None:
         with data.clock("other"):
             _keep_folds(fitter, data, chosen, folds)
@@ -470,6 +474,28 @@ def _arcs_estimate(data: FitData, fitter: _Candidates, chosen: str, settings: tu
     run = _loso(data, names, settings, auto, "arcs")
     missing = any(m not in run.preds for m in names)
     return across_lightings(run.estimate(None if missing else combine([run.preds[m] for m in names])), fitter.spread.get(chosen)), run
+
+
+def _blend_or_part(fitter: _Candidates, run: LosoPredictions, relight: RelightEstimate,
+                   reason: str) -> tuple[str, RelightEstimate, str]:
+    """``auto``'s chosen blend against its own parts on the arcs pass ``run``: ``(chosen, its estimate, reason)``.
+
+    The blend's weights were stacked on the interleaved folds, so its error there is in sample.  Here the part
+    with the smallest leave-one-scene-out error replaces the blend when that error is below the blend's with
+    weights stacked on the other arcs (:func:`~brdfrig.fit.blend.nested_stacking`): both out of sample."""
+    names = list(fitter.entries[BLEND].fit_report["parts"])
+    if any(m not in run.preds for m in names):
+        return BLEND, relight, reason
+    nested = run.estimate(nested_stacking([run.preds[m] for m in names], run.target, run.weights, run.fold)).value
+    if nested is None:  # no radiance in the left-out pixels
+        return BLEND, relight, reason
+    errors = {m: run.estimate(run.preds[m]).value for m in names}
+    part = min(names, key=lambda m: errors[m])
+    versus = f"{part} {errors[part]:.4g} against the blend {nested:.4g} (weights stacked on the other arcs)"
+    if errors[part] >= nested:
+        return BLEND, relight, f"{reason}; kept against its best part on the arcs folds: {versus}"
+    estimate = across_lightings(run.estimate(run.preds[part]), fitter.spread.get(part))
+    return part, estimate, f"{reason}; replaced by its part {part}, better on the arcs folds: {versus}"
 
 
 def _refit(fold: FitData, names: list[str], settings: tuple, auto: bool) -> dict[str, FittedBRDF]:

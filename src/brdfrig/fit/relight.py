@@ -367,6 +367,8 @@ class LosoPredictions:
         The folds, for the estimates' ``detail``.
     rows : (N,) int
         The left-out pixels' rows of the fit's pixel pool.
+    fold : (N,) int
+        The fold each left-out pixel belongs to (index into :func:`loso_folds`).
     brdfs : dict
         Model name -> its refit on each fold, for the models in ``preds``.
     """
@@ -376,6 +378,7 @@ class LosoPredictions:
     preds: dict[str, np.ndarray]
     detail: str
     rows: np.ndarray
+    fold: np.ndarray
     brdfs: dict[str, list]
 
     def estimate(self, pred: np.ndarray | None) -> RelightEstimate:
@@ -415,9 +418,10 @@ def loso_predictions(data: FitData, names: list[str], fit_fold: Callable[[FitDat
                 refits[m].append(brdfs[m])
     how = FOLD_SPLITS[split].format(F=len(folds))
     detail = f"{len(folds)} folds of {n_scenes} scenes ({how}), refitted without each fold"
+    fold_of = np.concatenate([np.full(len(r), f) for f, r in enumerate(rows)])
     rows = np.concatenate(rows)
     return LosoPredictions(data.pool.radiance[rows], data.pool.weights[rows], {m: np.concatenate(p) for m, p in preds.items()},
-                           detail, rows, {m: refits[m] for m in preds})
+                           detail, rows, fold_of, {m: refits[m] for m in preds})
 
 
 def fold_predictions(data: FitData, loso: LosoPredictions, name: str) -> np.ndarray | None:
