@@ -489,12 +489,12 @@ def _blend_or_part(fitter: _Candidates, run: LosoPredictions, relight: RelightEs
     nested = run.estimate(nested_stacking([run.preds[m] for m in names], run.target, run.weights, run.fold)).value
     if nested is None:  # no radiance in the left-out pixels
         return BLEND, relight, reason
-    errors = {m: run.estimate(run.preds[m]).value for m in names}
-    part = min(names, key=lambda m: errors[m])
-    versus = f"{part} {errors[part]:.4g} against the blend {nested:.4g} (weights stacked on the other arcs)"
-    if errors[part] >= nested:
+    own = run.estimates(names)
+    part = min(names, key=lambda m: own[m].value)
+    versus = f"{part} {own[part].value:.4g} against the blend {nested:.4g} (weights stacked on the other arcs)"
+    if own[part].value >= nested:
         return BLEND, relight, f"{reason}; kept against its best part on the arcs folds: {versus}"
-    estimate = across_lightings(run.estimate(run.preds[part]), fitter.spread.get(part))
+    estimate = across_lightings(own[part], fitter.spread.get(part))
     return part, estimate, f"{reason}; replaced by its part {part}, better on the arcs folds: {versus}"
 
 
