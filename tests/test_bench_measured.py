@@ -130,6 +130,23 @@ def test_a_turned_relight_probe_is_the_probe_rotated(probes, tmp_path):
         probe_environment("grace@w90", 8, probes)
 
 
+def test_a_relight_probe_lit_as_a_fit_scene_is_refused():
+    """Relighting under a fit scene's own lighting measures reproduction: refused naming the probe and the scene
+    (grace turned 180 is the 7th of twelve turns, grace itself the first of any setup, -45 degrees the 3rd tilt);
+    the same turns where no scene shows them, another probe, or another fit probe are accepted."""
+    from brdfrig.errors import InputError
+
+    for kwargs, probe, scene in (({"scenes": 12}, "grace@y180", 7), ({"scenes": 12}, "grace@y-180", 7),
+                                 ({"scenes": 2}, "grace@y30", 2), ({}, "grace", 1),
+                                 ({"scenes": 3, "arrangement": "tilts"}, "grace@x-45", 3)):
+        with pytest.raises(InputError, match=rf"relight probe '{probe}' is the lighting of fit scene {scene} of"):
+            CaseSetup(16, relight_probes=("ennis", probe), **kwargs)
+    for kwargs, probe in (({"scenes": 12}, "grace@y15"), ({"scenes": 12}, "grace@x90"), ({}, "grace@y180"),
+                          ({"scenes": 2, "arrangement": "tilts"}, "grace@x-45"), ({"scenes": 12}, "ennis@y180"),
+                          ({"scenes": 12, "fit_probe": "pisa"}, "grace@y180")):
+        assert CaseSetup(16, relight_probes=(probe,), **kwargs).relight_probes == (probe,)
+
+
 def test_cache_returns_the_same_array_and_rerenders_a_damaged_file(probes, tmp_path):
     setup = CaseSetup(16, relight_probes=("ennis",), env_rows=8, probe_dir=probes)
     material = Material("ggx", brdf=GGX_TRUTH)
@@ -297,6 +314,11 @@ def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--arrangement", "tilts",
                            "--scenes", "1", "6", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "1..4 for tilts" in proc.stderr and "Traceback" not in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--scenes", "1", "12",
+                           "--relight-probes", "ennis,grace@y180", "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "'grace@y180' is the lighting of fit scene 7 of 12" in proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "o").exists()
 
 
 def _case(material: str, model: str, error: float, estimate: float | None = None, turned: float | None = None) -> dict:

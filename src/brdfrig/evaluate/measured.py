@@ -48,7 +48,7 @@ import numpy as np
 
 from brdfrig.errors import InputError
 from brdfrig.evaluate.cache import CachedGroundTruth, brdf_identity
-from brdfrig.evaluate.probes import DEFAULT_PROBE_DIR, probe_environment
+from brdfrig.evaluate.probes import DEFAULT_PROBE_DIR, probe_environment, probe_turn
 from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment, Scene
@@ -216,7 +216,11 @@ def make_cache(directory: str | Path = DEFAULT_CACHE_DIR) -> CachedGroundTruth:
 
 @dataclass(frozen=True)
 class CaseSetup:
-    """Geometry and lighting of a benchmark case (defaults: the issue's standard case)."""
+    """Geometry and lighting of a benchmark case (defaults: the issue's standard case).
+
+    A relight probe that is the lighting of one of the fit scenes (the fit probe itself, or turned as a turned or
+    tilted scene is: ``grace@y180`` with twelve turns) is refused: its error would be the fit's own residual.
+    """
 
     size: int = 96
     fit_probe: str = "grace"
@@ -236,6 +240,12 @@ class CaseSetup:
             raise InputError(f"scenes must be an integer in 1..{most} for {self.arrangement}, got {self.scenes!r}")
         if not self.relight_probes:
             raise InputError("at least one relight probe is needed")
+        for probe in self.relight_probes:
+            scene = _fit_scene_of(self, probe)
+            if scene is not None:
+                raise InputError(f"relight probe {probe!r} is the lighting of fit scene {scene + 1} of {self.scenes} "
+                                 f"({self.fit_probe} {self.arrangement}): its error would be how the fit reproduces its "
+                                 "own image, not relighting; name a lighting no fit scene shows")
 
 
 @dataclass
@@ -269,6 +279,18 @@ def scene_rotations(setup: CaseSetup) -> list[np.ndarray | None]:
     if setup.arrangement == "turns":
         return [None] + [axis_rotation("y", TURN_DEG * k) for k in range(1, setup.scenes)]
     return [None] + [axis_rotation("x", deg) for deg in TILT_DEG[: setup.scenes - 1]]
+
+
+def _fit_scene_of(setup: CaseSetup, probe: str) -> int | None:
+    """Index of the fit scene of ``setup`` lit as the relight ``probe`` (the fit probe turned as that scene, to
+    1e-9), or None."""
+    name, rotation = probe_turn(probe)
+    if name != str(setup.fit_probe):
+        return None
+    for k, r in enumerate(scene_rotations(setup)):
+        if np.allclose(rotation, np.eye(3) if r is None else r, rtol=0.0, atol=1e-9):
+            return k
+    return None
 
 
 def scene_label(scenes: int, arrangement: str = "turns") -> str:
@@ -565,7 +587,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--fit-probe", default="grace", help="probe of the fit (default: %(default)s)")
     g.add_argument("--relight-probes", type=_split, default=["ennis", "pisa"], metavar="NAME,...",
                    help="probes of the relighting (default: ennis,pisa; the first is the headline); NAME@AXISDEGREES "
-                        "turns one (grace@y180: the fit room at an orientation no scene shows)")
+                        "turns one (grace@y180: the fit room turned half round); a fit scene's own lighting is refused")
     g.add_argument("--env-rows", type=int, default=64, help="lat-long rows of the probes (default: %(default)s)")
     g.add_argument("--measured-dir", type=Path, default=MEASURED_DIR, help="measured materials (default: %(default)s)")
     g.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")

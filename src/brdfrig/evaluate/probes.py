@@ -12,7 +12,7 @@ from brdfrig.errors import InputError
 from brdfrig.fit.rotation import axis_rotation
 from brdfrig.fit.scene import Environment
 
-__all__ = ["DEFAULT_PROBE_DIR", "TURNED", "box_downsample", "probe_environment"]
+__all__ = ["DEFAULT_PROBE_DIR", "TURNED", "box_downsample", "probe_environment", "probe_turn"]
 
 DEFAULT_PROBE_DIR = Path(__file__).resolve().parents[4] / "shared" / "data" / "probes"
 """``../shared/data/probes`` beside the source tree (grace, pisa, ennis: 256x128 Radiance ``.hdr``)."""
@@ -50,7 +50,7 @@ def probe_environment(probe: str | Path, rows: int = 64, probe_dir: Path = DEFAU
     probe : str or path
         A probe name (``"grace"`` -> ``probe_dir/grace.hdr``, else ``.exr``) or a file path, optionally followed by
         a turn :data:`TURNED` (``"grace@y180"``: the lighting turned by
-        :func:`brdfrig.fit.rotation.axis_rotation` ``("y", 180)``, the fit room at an orientation no scene shows).
+        :func:`brdfrig.fit.rotation.axis_rotation` ``("y", 180)``).
     rows : int
         Lat-long rows after downsampling (must divide the map's height).
     probe_dir : path
@@ -61,10 +61,9 @@ def probe_environment(probe: str | Path, rows: int = 64, probe_dir: Path = DEFAU
     InputError
         If no such probe file exists (the message names where it looked).
     """
-    turn = TURNED.match(str(probe))
-    if turn:
-        env = probe_environment(turn["probe"], rows, probe_dir)
-        return env.rotated(axis_rotation(turn["axis"], float(turn["degrees"])))
+    name, rotation = probe_turn(probe)
+    if name != str(probe):
+        return probe_environment(name, rows, probe_dir).rotated(rotation)
     path = Path(probe)
     if not path.suffix:
         candidates = [Path(probe_dir) / f"{probe}{ext}" for ext in (".hdr", ".exr")]
@@ -73,3 +72,12 @@ def probe_environment(probe: str | Path, rows: int = 64, probe_dir: Path = DEFAU
         form = " (a turned probe is NAME@AXISDEGREES, e.g. grace@y180)" if "@" in str(probe) else ""
         raise InputError(f"light probe {probe!r} not found (looked for {path}){form}")
     return _probe(path.resolve(), int(rows))
+
+
+def probe_turn(probe: str | Path) -> tuple[str, np.ndarray]:
+    """``probe`` split into the probe it names and the (3, 3) rotation of its turn (:data:`TURNED`; the identity
+    for a probe named without one): ``"grace@y180"`` -> ``("grace", axis_rotation("y", 180))``."""
+    turn = TURNED.match(str(probe))
+    if turn:
+        return turn["probe"], axis_rotation(turn["axis"], float(turn["degrees"]))
+    return str(probe), np.eye(3)
