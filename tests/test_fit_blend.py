@@ -195,7 +195,8 @@ def test_several_scenes_stack_the_tables_on_leave_one_scene_out_predictions(envs
     print(f"weights {result.brdf.weights}, estimate {cand.relight.value:.4f}, relit {relit:.4f}")
     assert relit < 0.01
     # the parts' refits on the two folds, kept for an estimate under a given lighting: each fold's blend of them
-    # (BlendBRDF.predict) spreads under the other probe by s, so the estimate is e s / (sqrt(2) s0)
+    # (BlendBRDF.predict) spreads under the other probe by s, so the estimate is sqrt(c d) of c = e s / (sqrt(2) s0)
+    # and d = s sqrt(2)
     from brdfrig.fit.relight import FOLDS_FOR_LIGHTING, lighting_estimate
 
     folds = [report.candidates[m].fit_report["fold_tables"] for m in parts]
@@ -204,4 +205,5 @@ def test_several_scenes_stack_the_tables_on_leave_one_scene_out_predictions(envs
     s = relative_spread(np.stack([b.predict(test_env, normals) for b in blends]), np.ones(len(normals)))
     est = lighting_estimate(report.to_dict(), test_env, normals, np.ones(len(normals)))
     assert est.method == FOLDS_FOR_LIGHTING
-    assert est.value == pytest.approx(cand.relight.value * s / (math.sqrt(2) * cand.fit_report["fold_spread"]), rel=1e-6)
+    c = cand.relight.value * s / (math.sqrt(2) * cand.fit_report["fold_spread"])
+    assert est.value == pytest.approx(math.sqrt(c * s * math.sqrt(2)), rel=1e-6)

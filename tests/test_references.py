@@ -257,9 +257,9 @@ def _several_scenes(size: int = 32):
 
 def test_lighting_estimate_of_several_scenes_from_the_refits_on_the_folds(synthetic_references):
     """Fold refits (1 + a_f) T predict (1 + a_f) times one radiance under any lighting: their relative spread is
-    rms(a_f) (mean a_f = 0), so the estimate is e rms(a) / (sqrt(F) s0) (closed form); a blend's parts combine with its
-    weights.  A parametric choice or refits that agree on the fit scenes keep the report's estimate; damaged
-    tables or spreads are refused."""
+    s = rms(a_f) (mean a_f = 0), so the estimate is sqrt(c d) with c = e s / (sqrt(F) s0) and d = s sqrt(F / (F - 1))
+    (closed form); a blend's parts combine with its weights.  A parametric choice or refits that agree on the fit
+    scenes keep the report's estimate; damaged tables or spreads, or a single fold, are refused."""
     from brdfrig.fit.relight import FOLDS_FOR_LIGHTING, lighting_estimate
 
     scenes, test_env = _one_scene(24)
@@ -272,13 +272,14 @@ def test_lighting_estimate_of_several_scenes_from_the_refits_on_the_folds(synthe
               "candidates": {m: {"fit_report": {"fold_tables": t.tolist(), "fold_spread": s0}} for m, t in folds.items()}}
     blend = {"fit_report": {"parts": {"bivariate": 0.25, "bivariate+measured": 0.75}, "fold_spread": s0}}
     mixed = 0.25 * a + 0.75 * b
+    closed = lambda s: math.sqrt(e * s / (math.sqrt(3) * s0) * s * math.sqrt(3 / 2))
     for env in (scenes[0].env, test_env):
         est = lighting_estimate(report, env, scenes[0].normals, scenes[0].weights)
         assert est.method == FOLDS_FOR_LIGHTING
-        assert est.value == pytest.approx(e * math.sqrt(np.mean(a**2)) / (math.sqrt(3) * s0), rel=1e-9)
+        assert est.value == pytest.approx(closed(math.sqrt(np.mean(a**2))), rel=1e-9)
         est = lighting_estimate(report | {"chosen_model": "bivariate+blend", "candidates": report["candidates"] | {"bivariate+blend": blend}},
                                 env, scenes[0].normals, scenes[0].weights)
-        assert est.value == pytest.approx(e * math.sqrt(np.mean((mixed - mixed.mean()) ** 2)) / (math.sqrt(3) * s0) / (1 + mixed.mean()), rel=1e-9)
+        assert est.value == pytest.approx(closed(math.sqrt(np.mean((mixed - mixed.mean()) ** 2)) / (1 + mixed.mean())), rel=1e-9)
     for other in ({"chosen_model": "microfacet"}, {"candidates": {"bivariate": {"fit_report": {"fold_tables": folds["bivariate"], "fold_spread": 0.0}}}}):
         same = lighting_estimate(report | other, test_env, scenes[0].normals, scenes[0].weights)
         assert (same.value, same.method) == (e, standing["method"])
@@ -287,6 +288,9 @@ def test_lighting_estimate_of_several_scenes_from_the_refits_on_the_folds(synthe
         bad = {"bivariate": {"fit_report": {"fold_tables": folds["bivariate"], "fold_spread": s0} | {key: value}}}
         with pytest.raises(ValueError, match=match):
             lighting_estimate(report | {"candidates": bad}, test_env, scenes[0].normals, scenes[0].weights)
+    single = {"bivariate": {"fit_report": {"fold_tables": folds["bivariate"][:1], "fold_spread": s0}}}
+    with pytest.raises(ValueError, match="hold 1 fold"):
+        lighting_estimate(report | {"candidates": single}, test_env, scenes[0].normals, scenes[0].weights)
     uneven = report["candidates"] | {"bivariate+blend": blend, "bivariate": {"fit_report": {"fold_tables": folds["bivariate"][:2]}}}
     with pytest.raises(ValueError, match="differ in their number of folds"):
         lighting_estimate(report | {"chosen_model": "bivariate+blend", "candidates": uneven}, test_env, scenes[0].normals, scenes[0].weights)

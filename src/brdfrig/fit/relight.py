@@ -272,7 +272,10 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
       ``sqrt(F - 1) D / F``; under a lighting none has seen, F refits each deviating by ``D`` spread by
       ``sqrt((F - 1) / F) D``, ``sqrt(F)`` times more.  With ``s_0`` their spread over the left-out pixels
       (``fold_spread``), ``s_L / (sqrt(F) s_0)`` is how much more (or less) the refits deviate under ``env`` than
-      under the fit's lightings, and the estimate is ``e s_L / (sqrt(F) s_0)``: no constant fitted to materials.
+      under the fit's lightings, so ``c = e s_L / (sqrt(F) s_0)`` carries ``e`` to ``env``; ``d = s_L sqrt(F / (F - 1))``
+      is one refit's deviation under ``env``.  ``c`` runs high where a smooth lighting averages the refits' errors
+      out, ``d`` low where the refits agree on what none of them measured; the estimate is their geometric mean
+      ``sqrt(c d)``: no constant fitted to materials.
 
     Otherwise (no estimate, a parametric model chosen, refits that agree on every fit scene): the report's estimate.
 
@@ -303,13 +306,17 @@ def lighting_estimate(report: dict, env: Environment, normals: np.ndarray, weigh
     folds = {m: _node_values(kept.get(m, {}).get("fold_tables"), f"fold_tables of {m}") for m in parts}
     if len({len(t) for t in folds.values()}) != 1:
         raise ValueError(f"fold_tables of {', '.join(parts)} differ in their number of folds")
+    f = len(next(iter(folds.values())))
+    if f < 2:
+        raise ValueError(f"fold_tables of {', '.join(parts)} hold {f} fold; the spread of refits needs at least 2")
     if s0 == 0:
         return standing
-    f = len(next(iter(folds.values())))
     s = tables_spread([(w, folds[m]) for m, w in parts.items()], env, normals, weights)
-    return RelightEstimate(e * s / (math.sqrt(f) * s0), FOLDS_FOR_LIGHTING,
-                           f"e s / (sqrt({f}) s0) of e = {e:.3g} ({standing.method}), the spread s = {s:.3g} of the fit "
-                           f"refitted on {f} folds under this lighting and s0 = {s0:.3g} over the left-out pixels")
+    c, d = e * s / (math.sqrt(f) * s0), s * math.sqrt(f / (f - 1))
+    return RelightEstimate(math.sqrt(c * d), FOLDS_FOR_LIGHTING,
+                           f"sqrt(c d) of c = e s / (sqrt({f}) s0) = {c:.3g} and d = s sqrt({f} / {f - 1}) = {d:.3g}, "
+                           f"of e = {e:.3g} ({standing.method}), the spread s = {s:.3g} of the fit refitted on {f} folds "
+                           f"under this lighting and s0 = {s0:.3g} over the left-out pixels")
 
 
 def _node_values(tables, what: str) -> np.ndarray:
