@@ -47,7 +47,7 @@ the estimate above to that lighting with tables the fit keeps, whose spread unde
 ``bivariate+measured``'s tables re-solved on bootstrap resamples of the reference materials (what one image left to
 the references shows up where the lighting lights it); from several scenes, the chosen table (a blend's parts)
 refitted on each fold of the leave-one-scene-out pass its estimate came from (how far the refits part under the
-lighting, against how far they part on the scenes each did not see).
+lighting, against how far they part on the scenes each did not see, and how far that puts one refit off there).
 """
 
 from __future__ import annotations
