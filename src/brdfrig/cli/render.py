@@ -10,7 +10,8 @@ Written as a linear float32 EXR, atomically.
 
 For a fitted BRDF file the fit's relighting error is estimated for this lighting
 (one-image fits: from how much the fit's tables, re-solved on resampled reference
-materials, disagree under it) and printed with how it was obtained.
+materials, disagree under it; fits of several scenes: from how much its refits on
+the leave-one-scene-out folds disagree under it) and printed with how it was obtained.
 """
 
 from __future__ import annotations
