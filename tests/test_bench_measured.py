@@ -300,6 +300,15 @@ def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probe
     assert str(out / PARTIAL_JSON) in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("value, label", [(0.0005, "0.05%"), (0.001, "0.1%"), (0.002, "0.2%"), (0.005, "0.5%"),
+                                          (0.01, "1%"), (0.2, "20%"), (1.0, "100%")])
+def test_estimate_plot_ticks_keep_errors_below_one_percent(value, label):
+    """The estimates plot spans 0.05-100% on log axes (LogLocator 1, 2, 5 per decade): each tick reads its own value."""
+    from brdfrig.evaluate.measured_report import percent_tick
+
+    assert percent_tick(value) == label
+
+
 def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--materials", "nosuch",
                            "--measured-dir", str(tmp_path), "--out", str(tmp_path / "o")],

@@ -345,6 +345,11 @@ PLOT_CEILING = 2.0
 """Relative errors above this are drawn at it in :func:`plot_errors` (an unregularised fit can reach 1e6)."""
 
 
+def percent_tick(value: float, _pos=None) -> str:
+    """Axis label of a relative error ``value`` as a percentage to three significant digits (0.002 -> ``0.2%``)."""
+    return f"{100 * value:.3g}%"
+
+
 def plot_errors(result: MeasuredResult, path: Path) -> Path:
     """PNG: relighting error per material (x) per model (markers), one panel per (scenes, noise), log scale,
     clipped at :data:`PLOT_CEILING`."""
@@ -388,7 +393,7 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import LogLocator, NullFormatter, PercentFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     from brdfrig.report.figures import save_png
 
@@ -419,8 +424,9 @@ def plot_estimates(result: MeasuredResult, path: Path) -> Path | None:
            ylabel="reported estimate for that lighting", title=f"auto: estimate vs measured (band: within {ESTIMATE_FACTOR:g}x)")
     for axis in (ax.xaxis, ax.yaxis):
         axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        axis.set_major_formatter(PercentFormatter(1.0, decimals=0))
+        axis.set_major_formatter(FuncFormatter(percent_tick))
         axis.set_minor_formatter(NullFormatter())
+    ax.tick_params(labelsize=8)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
