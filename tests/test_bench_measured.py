@@ -242,7 +242,9 @@ def _check_kept_fits(out: Path, data: dict, probes: Path) -> None:
 def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probes, tmp_path, capsys):
     """A run stopped after its first material (its checkpoint written) is continued by ``--resume``: the
     finished material is not fitted again and every number equals a run that was never stopped.  Without
-    ``--resume``, or with other options, the checkpoint is refused (exit 2) and left as it was."""
+    ``--resume``, or with other options, the checkpoint is refused (exit 2) and left as it was.  The resumed
+    material's ``auto`` case is relit again from its BRDF file for ``worst.png``: its images reproduce the error
+    the first session recorded against the cached reference (1e-9); a file that no longer reads is skipped."""
     if not (MEASURED / "rgl").is_dir():
         pytest.skip("../shared/data/measured is absent")
     from brdfrig.cli.main import main
@@ -268,7 +270,7 @@ def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probe
     setup = CaseSetup(16, "grace", ("ennis",), 16, 1, probes)
     with pytest.raises(Stop):
         run_measured_benchmark(find_materials(names), ("auto", "diffuse"), setup, cache_dir=tmp_path / "cache",
-                               progress=False, warm_up=False, checkpoint=stop)
+                               progress=False, warm_up=False, checkpoint=stop, keep=out)
     checkpoint = (out / PARTIAL_JSON).read_bytes()
     first = {c["material"] for c in json.loads(checkpoint)["cases"]}
     assert len(first) == 1
@@ -280,7 +282,9 @@ def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probe
         assert says in capsys.readouterr().err
         assert (out / PARTIAL_JSON).read_bytes() == checkpoint
     assert main(argv + ["--out", str(out), "--resume"]) == 0
-    assert "1 material run(s) resumed from an earlier session" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "1 material run(s) resumed from an earlier session" in printed
+    assert "worst.png: 1 resumed case(s) relit" in printed
     assert not (out / PARTIAL_JSON).exists()
     resumed = json.loads((out / "measured.json").read_text())
 
@@ -292,6 +296,24 @@ def test_an_interrupted_run_resumes_to_the_numbers_of_an_uninterrupted_one(probe
     saved = {(c["material"], c["model"]): c["fit_seconds"] for c in json.loads(checkpoint)["cases"]}
     fit_seconds = {(c["material"], c["model"]): c["fit_seconds"] for c in resumed["cases"]}
     assert {k: fit_seconds[k] for k in saved} == saved
+    # worst.png's images of a resumed case, from its BRDF file and the cached reference
+    from brdfrig.evaluate.measured_report import result_from_json
+    from brdfrig.evaluate.measured_run import image_resumed
+
+    def read_back():
+        run = result_from_json(resumed)
+        run.materials, run.setup = find_materials(names), setup
+        return run
+
+    again = read_back()
+    assert image_resumed(again, out, tmp_path / "cache") == 2  # both auto cases (their files are kept)
+    for case in (c for c in again.cases if c.model == "auto"):
+        truth = again.truths[(1, case.material)]
+        reference = truth.relight["ennis"][1]
+        assert _rms(case.relit["ennis"], reference, truth.weights) == pytest.approx(case.errors["ennis"], rel=1e-9)
+    again = read_back()
+    (out / next(c.fit_file for c in again.cases if c.model == "auto")).write_text("{")
+    assert image_resumed(again, out, tmp_path / "cache") == 1
     # nothing left to resume; a damaged checkpoint is named
     assert main(argv + ["--out", str(out), "--resume"]) == 2
     assert "holds no unfinished run" in capsys.readouterr().err

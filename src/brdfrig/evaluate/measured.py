@@ -69,6 +69,7 @@ __all__ = [
     "render_truth",
     "fit_and_relight",
     "fit_all_and_relight",
+    "relight_fits",
     "fit_path",
     "FITS_DIR",
     "failed_case",
@@ -405,7 +406,7 @@ def noisy_scenes(scenes: list[Scene], noise: float, seed: int = 0) -> list[Scene
             for s in scenes]
 
 
-def _relight(truth: Truth, brdfs: dict) -> dict[str, tuple[dict[str, float], dict[str, np.ndarray]]]:
+def relight_fits(truth: Truth, brdfs: dict) -> dict[str, tuple[dict[str, float], dict[str, np.ndarray]]]:
     """name -> (errors, relit radiance) of each BRDF in ``brdfs`` under every relight probe of ``truth``
     (:func:`brdfrig.fit.relight.predict_under`: the tables share their design)."""
     from brdfrig.fit.relight import predict_under
@@ -479,7 +480,7 @@ def fit_and_relight(truth: Truth, model: str, *, noise: float = 0.0, seed: int =
     only it is timed.  ``keep``: the run's output directory, where the fit is written (:func:`fit_path`).
     """
     result, report, seconds, cpu = _timed_fit(truth, model, noise, seed, fit)
-    errors, relit = _relight(truth, {model: result.brdf})[model]
+    errors, relit = relight_fits(truth, {model: result.brdf})[model]
     estimate, method = reported_estimate(report)
     return CaseResult(truth.material.name, model, str(report.get("chosen_model", model)), truth.setup.scenes,
                       float(noise), errors, seconds, estimate, truth.material.held_out,
@@ -505,7 +506,7 @@ def fit_all_and_relight(truth: Truth, models, *, noise: float = 0.0, seed: int =
         estimate, method = reported_estimate(report)
         chosen = report["chosen_model"]
         brdfs = {m: b for m, b in result.brdfs.items() if m in models and m != "auto"}
-        relights = _relight(truth, {**brdfs, chosen: result.brdf})  # the chosen fit is relit once
+        relights = relight_fits(truth, {**brdfs, chosen: result.brdf})  # the chosen fit is relit once
         errors, relit = relights[chosen]
         mat = truth.material
         out["auto"] = CaseResult(mat.name, "auto", report["chosen_model"], truth.setup.scenes, float(noise), errors,

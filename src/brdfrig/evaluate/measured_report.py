@@ -439,10 +439,26 @@ def _image(truth, values: np.ndarray) -> np.ndarray:
     return img
 
 
-def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int = 5) -> Path | None:
+WORST_COUNT = 5
+"""Materials ``worst.png`` shows."""
+
+
+def worst_model(result: MeasuredResult) -> str:
+    """The model ``worst.png`` shows: ``auto`` if the run has it, else its first model."""
+    return AUTO if AUTO in result.models else result.models[0]
+
+
+def headline_cases(result: MeasuredResult, model: str) -> list:
+    """The cases of ``model`` at the run's first scene count and first noise level, worst (largest error) first."""
+    scenes, noise = result.scene_counts[0], result.noises[0]
+    group = [c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise]
+    return sorted(group, key=lambda c: -c.error if math.isfinite(c.error) else -math.inf)
+
+
+def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int = WORST_COUNT) -> Path | None:
     """PNG: reference vs relit sphere (and |difference| x4) of the ``count`` worst materials of ``model``
-    (first scene count, noise 0 or the first noise level), under the headline probe; same exposure per row.
-    Only cases fitted in this session have images (a resumed run's earlier cases are left out, and the title says so)."""
+    (:func:`headline_cases`), under the headline probe; same exposure per row.  Only cases with images are drawn
+    (a resumed run's earlier cases have them where they were relit again; the title says when some lack them)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -451,9 +467,9 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
     from brdfrig.report.figures import save_png
 
     scenes, noise = result.scene_counts[0], result.noises[0]
-    group = [c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise]
+    group = headline_cases(result, model)
     imaged = [c for c in group if (scenes, c.material) in result.truths and c.relit]
-    cases = sorted(imaged, key=lambda c: -c.error)[:count]
+    cases = imaged[:count]
     if not cases:
         return None
     probe = result.setup.relight_probes[0]
@@ -467,7 +483,8 @@ def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int
             ax.imshow(np.clip(_image(truth, values) / scale, 0, 1) ** (1 / 2.2))
             ax.set_title(f"{case.material}: {title}" if title == "reference" else title, fontsize=7)
             ax.axis("off")
-    among = "" if len(imaged) == len(group) else f" among the {len(imaged)} fitted in this session"
+    complete = [id(c) for c in cases] == [id(c) for c in group[:count]]
+    among = "" if complete else f" among the {len(imaged)} with images"
     fig.suptitle(f"worst {len(cases)} of {model}{among} ({scene_label(scenes, result.setup.arrangement)}, noise {noise:g}, relit under {probe})", fontsize=8)
     fig.tight_layout()
     return save_png(fig, path, dpi=100)
@@ -494,7 +511,7 @@ def write_outputs(result: MeasuredResult, out: Path) -> list[Path]:
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    worst_of = AUTO if AUTO in result.models else result.models[0]
+    worst_of = worst_model(result)
     figures = [("Relighting error per material and model", plot_errors(result, out / "errors.png")),
                (f"The worst materials of {worst_of} (at most five): reference, relit, difference",
                 plot_worst(result, out / "worst.png", worst_of)),

@@ -11,7 +11,8 @@ every model on a small subset of the first material's pixels runs in each proces
 (numba kernels load, tables get built).  With ``workers`` > 1 the materials are shared out to Dask worker
 processes of a local cluster (:func:`run_measured_benchmark`).  A run interrupted after some materials is
 continued with ``--resume`` from the cases its checkpoint holds
-(:func:`~brdfrig.evaluate.measured_report.load_partial`).  The optional peer (``--peer mitsuba``:
+(:func:`~brdfrig.evaluate.measured_report.load_partial`); those among the worst that ``worst.png`` shows are
+relit again from their BRDF files (:func:`image_resumed`).  The optional peer (``--peer mitsuba``:
 :mod:`brdfrig.evaluate.mitsuba_peer`) fits Mitsuba's ``principled`` BSDF to the
 same (noisy) pixels of the first scene, in one-scene runs only, and is relit by
 Mitsuba: one more "model" named ``peer:mitsuba``.
@@ -27,10 +28,11 @@ import numpy as np
 
 from brdfrig.errors import InputError
 from brdfrig.evaluate.measured import (CaseResult, CaseSetup, Material, Truth, failed_case, fit_all_and_relight,
-                                       fit_and_relight, find_materials, list_materials, make_cache, model_names, render_truth)
+                                       fit_and_relight, find_materials, list_materials, make_cache, model_names,
+                                       relight_fits, render_truth)
 from brdfrig.fit.scene import Scene
 
-__all__ = ["MeasuredResult", "run_measured_benchmark", "run_from_args", "PEER_PREFIX"]
+__all__ = ["MeasuredResult", "run_measured_benchmark", "image_resumed", "run_from_args", "PEER_PREFIX"]
 
 PEER_PREFIX = "peer:"
 CPU_KEY = "CPU, all threads"
@@ -266,6 +268,41 @@ def run_measured_benchmark(materials: list[Material], models, setup: CaseSetup =
     return result
 
 
+def image_resumed(result: MeasuredResult, out: Path, cache_dir: Path) -> int:
+    """Relight again, under the headline probe, the resumed cases among the worst ``worst.png`` shows
+    (:func:`~brdfrig.evaluate.measured_report.headline_cases` of
+    :func:`~brdfrig.evaluate.measured_report.worst_model`), from their BRDF files under ``out`` and their ground
+    truth (from the cache in ``cache_dir``, else rendered), so that the figure shows the worst of the whole run.
+
+    A case is given its image (and ``result.truths`` its truth) only if its file reads and relights to the error
+    the run recorded under that probe (relative difference below 1e-6); otherwise (missing, unreadable or changed)
+    it stays without.  Returns how many were given."""
+    from brdfrig.evaluate.measured_report import WORST_COUNT, headline_cases, worst_model
+    from brdfrig.fit.brdffile import load_brdf
+
+    model, probe = worst_model(result), result.setup.relight_probes[0]
+    materials = {m.name: m for m in result.materials}
+    cache = make_cache(cache_dir)
+    given = 0
+    for case in headline_cases(result, model)[:WORST_COUNT]:
+        key = (case.scenes, case.material)
+        if case.relit or not case.fit_file or case.material not in materials:
+            continue
+        try:
+            brdf = load_brdf(Path(out) / case.fit_file)[0]
+        except (InputError, OSError):
+            continue
+        truth = result.truths.get(key) or render_truth(materials[case.material], replace(result.setup, scenes=case.scenes),
+                                                       cache)
+        headline = replace(truth, relight={probe: truth.relight[probe]})
+        errors, relit = relight_fits(headline, {model: brdf})[model]
+        if abs(errors[probe] - case.errors[probe]) <= 1e-6 * case.errors[probe]:
+            case.relit = relit
+            result.truths[key] = truth
+            given += 1
+    return given
+
+
 def run_from_args(args) -> int:
     """Run the benchmark from parsed options (:func:`brdfrig.evaluate.measured.add_arguments` + ``--out``,
     ``--probes``, ``--no-progress``), print the table and summary, write PNGs and JSON into ``--out``.
@@ -300,6 +337,9 @@ def run_from_args(args) -> int:
                                     seed=args.seed, cache_dir=args.cache or out / "gt-cache", peer=args.peer,
                                     progress=not args.no_progress, warm_up=not args.no_warm_up,
                                     checkpoint=lambda r: write_partial(r, out), workers=args.workers, resume=resume, keep=out)
+    if resume is not None:
+        print("worst.png: relighting the resumed cases among the worst from their BRDF files ...", flush=True)
+        print(f"worst.png: {image_resumed(result, out, args.cache or out / 'gt-cache')} resumed case(s) relit", flush=True)
     print(format_report(result), flush=True)
     for path in write_outputs(result, out):
         print(f"wrote {path.resolve()}")
