@@ -331,6 +331,23 @@ def test_estimate_plot_ticks_keep_errors_below_one_percent(value, label):
     assert percent_tick(value) == label
 
 
+def test_worst_cases_come_first_and_failed_ones_last():
+    """``headline_cases``: ``auto`` at the first scene count and noise level, by error under the headline probe,
+    an infinite error first and a failed case (NaN) last; other models and noise levels left out."""
+    from brdfrig.evaluate.measured import CaseResult, CaseSetup
+    from brdfrig.evaluate.measured_report import headline_cases, worst_model
+    from brdfrig.evaluate.measured_run import MeasuredResult
+
+    def case(name, model, noise, error):
+        return CaseResult(name, model, model, 1, noise, {"ennis": error, "pisa": 0.0}, 1.0, None, False)
+
+    cases = [case("a", "auto", 0.0, 0.1), case("b", "auto", 0.0, float("nan")), case("c", "auto", 0.0, 0.3),
+             case("d", "auto", 0.0, float("inf")), case("e", "auto", 0.01, 0.9), case("f", "diffuse", 0.0, 0.5)]
+    result = MeasuredResult(cases, CaseSetup(relight_probes=("ennis", "pisa")), (1,), (0.0, 0.01), ("diffuse", "auto"), [])
+    assert worst_model(result) == "auto"
+    assert [c.material for c in headline_cases(result, "auto")] == ["d", "c", "a", "b"]
+
+
 def test_cli_bad_input_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "brdfrig", "bench", "--measured", "--materials", "nosuch",
                            "--measured-dir", str(tmp_path), "--out", str(tmp_path / "o")],

@@ -449,10 +449,11 @@ def worst_model(result: MeasuredResult) -> str:
 
 
 def headline_cases(result: MeasuredResult, model: str) -> list:
-    """The cases of ``model`` at the run's first scene count and first noise level, worst (largest error) first."""
+    """The cases of ``model`` at the run's first scene count and first noise level, worst (largest error) first,
+    failed ones (NaN error) last."""
     scenes, noise = result.scene_counts[0], result.noises[0]
     group = [c for c in result.cases if c.model == model and c.scenes == scenes and c.noise == noise]
-    return sorted(group, key=lambda c: -c.error if math.isfinite(c.error) else -math.inf)
+    return sorted(group, key=lambda c: math.inf if math.isnan(c.error) else -c.error)
 
 
 def plot_worst(result: MeasuredResult, path: Path, model: str = AUTO, count: int = WORST_COUNT) -> Path | None:
