@@ -286,7 +286,7 @@ def image_resumed(result: MeasuredResult, out: Path, cache_dir: Path) -> int:
     given = 0
     for case in headline_cases(result, model)[:WORST_COUNT]:
         key = (case.scenes, case.material)
-        if case.relit or not case.fit_file or case.material not in materials:
+        if case.relit or not case.fit_file:
             continue
         try:
             brdf = load_brdf(Path(out) / case.fit_file)[0]
@@ -333,13 +333,14 @@ def run_from_args(args) -> int:
         every = models + ((PEER_PREFIX + args.peer,) if args.peer else ())
         resume = load_partial(out, setup_to_json(setup, args.scenes, args.noise, every, args.seed),
                               [m.name for m in materials])
+    cache_dir = args.cache or out / "gt-cache"
     result = run_measured_benchmark(materials, models, setup, scene_counts=tuple(args.scenes), noises=tuple(args.noise),
-                                    seed=args.seed, cache_dir=args.cache or out / "gt-cache", peer=args.peer,
+                                    seed=args.seed, cache_dir=cache_dir, peer=args.peer,
                                     progress=not args.no_progress, warm_up=not args.no_warm_up,
                                     checkpoint=lambda r: write_partial(r, out), workers=args.workers, resume=resume, keep=out)
     if resume is not None:
         print("worst.png: relighting the resumed cases among the worst from their BRDF files ...", flush=True)
-        print(f"worst.png: {image_resumed(result, out, args.cache or out / 'gt-cache')} resumed case(s) relit", flush=True)
+        print(f"worst.png: {image_resumed(result, out, cache_dir)} resumed case(s) relit", flush=True)
     print(format_report(result), flush=True)
     for path in write_outputs(result, out):
         print(f"wrote {path.resolve()}")
