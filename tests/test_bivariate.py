@@ -278,9 +278,8 @@ def test_a_lighting_and_pixels_seen_again_are_predicted_from_their_kept_design(e
     lighting are not served from it.  A budget too small for any design keeps none, and one that holds only the
     24 x 8 design keeps it (the larger 32 x 12 one is rendered, not built, so it flushes nothing); neither
     changes a prediction."""
-    from collections import OrderedDict
-
     from brdfrig.fit import bivariate
+    from brdfrig.fit.memo import RenderMemo
     from brdfrig.fit.analytic import Lambertian
 
     fit_env, test_env = envs
@@ -291,13 +290,11 @@ def test_a_lighting_and_pixels_seen_again_are_predicted_from_their_kept_design(e
     brdfs = [BivariateBRDF(rng.random((3, 24, 8))), lambertian, BivariateBRDF(rng.random((3, 24, 8)), rng.random((3, 24, 8)))]
     small = len(normals) * 2 * 24 * 8 * 3 * 8  # bytes of the 24 x 8 design on these pixels
     for budget, kept, kept_after in ((bivariate.DESIGN_CACHE_BYTES, 2, 4), (0, 0, 0), (small, 1, 1)):
-        monkeypatch.setattr(bivariate, "_designs", OrderedDict())
-        monkeypatch.setattr(bivariate, "_designs_seen", OrderedDict())
-        monkeypatch.setattr(bivariate, "DESIGN_CACHE_BYTES", budget)
+        monkeypatch.setattr(bivariate, "_DESIGNS", RenderMemo(budget, second_sight=True))
         first = bivariate.predict_tables(brdfs, test_env, normals)
-        assert len(bivariate._designs) == 0
+        assert len(bivariate._DESIGNS) == 0
         second = bivariate.predict_tables(brdfs, test_env, normals)
-        assert len(bivariate._designs) == kept
+        assert len(bivariate._DESIGNS) == kept
         third = bivariate.predict_tables(brdfs[::-1], test_env, normals)[::-1]
         for a, b, c in zip(first, second, third):
             assert relative_rms(b, a) < 1e-12 and relative_rms(c, a) < 1e-12
@@ -306,4 +303,4 @@ def test_a_lighting_and_pixels_seen_again_are_predicted_from_their_kept_design(e
             for _ in range(3):
                 other = bivariate.predict_tables([lambertian], env, pixels)[0]
                 assert relative_rms(other, Lambertian(albedo).predict(env, pixels)) < 1e-3
-        assert len(bivariate._designs) == kept_after
+        assert len(bivariate._DESIGNS) == kept_after

@@ -165,12 +165,13 @@ def test_families_share_lobe_renders_without_changing_the_fit():
     """The conductor's search after a dielectric fit of the same image renders only the points the dielectric's
     did not (the alpha grid is shared) and returns the fit it returns with an empty memo."""
     from brdfrig.fit import pbr_fit
+    from brdfrig.fit.memo import RENDERS
 
     fit_env, _, normals = _case(size=16)
     scene = Scene(fit_env, normals, FAMILIES["conductor"].predict(fit_env, normals), np.ones(len(normals)))
-    pbr_fit._moments_memo.clear()
+    RENDERS.clear()
     alone, rep_alone = fit_pbr([scene], "conductor", progress=False)
-    pbr_fit._moments_memo.clear()
+    RENDERS.clear()
     fit_pbr([scene], "dielectric", progress=False)
     shared, rep_shared = fit_pbr([scene], "conductor", progress=False)
     assert rep_shared["renders"] <= rep_alone["renders"] - pbr_fit.GRID_POINTS

@@ -75,9 +75,7 @@ image to 0.9% and relit at 65-135% (hence :data:`LAMBDA_MIN`).
 from __future__ import annotations
 
 import math
-import threading
 import time
-from collections import OrderedDict
 
 import numba
 import numpy as np
@@ -86,6 +84,7 @@ from tqdm import tqdm
 
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.lsq import nnls_normal
+from brdfrig.fit.memo import RENDERS, RenderMemo
 from brdfrig.fit.measured import _local_angles_to_dirs, rusinkiewicz_coordinates, rusinkiewicz_directions
 from brdfrig.fit.metrics import relative_spread
 from brdfrig.fit.microfacet import _check_scenes, _subsample
@@ -156,11 +155,8 @@ HALF_PI = 0.5 * math.pi
 DESIGN_CACHE_BYTES = 1 << 30
 """Bytes of designs :func:`predict_tables` keeps per process (a 96 px sphere's 6668 pixels: 61 MB at 24 x 8
 nodes, 123 MB at 32 x 12)."""
-DESIGNS_SEEN = 4096
-"""(lighting and pixels, grid) keys :func:`predict_tables` remembers having rendered once."""
-_designs: OrderedDict = OrderedDict()
-_designs_seen: OrderedDict = OrderedDict()
-_DESIGNS_LOCK = threading.Lock()
+_DESIGNS = RenderMemo(DESIGN_CACHE_BYTES, second_sight=True)
+"""The relight designs of :func:`predict_tables`, keyed by (lighting and pixels, grid)."""
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -280,9 +276,13 @@ def _normals(normals) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
 
 
-def _design(q: LobeQuadrature, normals: np.ndarray, nh: int, nd: int) -> np.ndarray:
-    """Design rows (N, 2 nh nd, C: the in-plane then the cross nodes) of sphere points with unit ``normals`` under the prepared quadrature ``q``."""
-    return _design_kernel(_normals(normals), q, nh, nd)
+def _design(env: Environment, q: LobeQuadrature, quad: dict, normals: np.ndarray, nh: int, nd: int) -> np.ndarray:
+    """Design rows (N, 2 nh nd, C: the in-plane then the cross nodes) of sphere points with unit ``normals`` under
+    ``q = lobe_quadrature(env, **quad)``, kept in :data:`brdfrig.fit.memo.RENDERS` (read-only; the tables of one
+    ``auto`` fit share their pixels)."""
+    normals = _normals(normals)
+    key = ("bivariate design", content_digest(normals, env), tuple(sorted(quad.items())), nh, nd)
+    return RENDERS.get(key, lambda: _design_kernel(normals, q, nh, nd))
 
 
 def theta_h_nodes(nh: int) -> np.ndarray:
@@ -434,26 +434,12 @@ def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
 
 def _known_design(key: tuple, q: LobeQuadrature, normals: np.ndarray) -> np.ndarray | None:
     """The design (N, 2 nh nd, C) of ``key = (content digest, (nh, nd))`` if seen before (built now on the second
-    sight, kept while :data:`DESIGN_CACHE_BYTES` allows, least recently used dropped first); None on the first,
-    and for a design larger than the whole budget (it would be rebuilt at every call and flush the others)."""
+    sight, kept in :data:`_DESIGNS`); None on the first, and for a design larger than the whole budget (it would
+    be rebuilt at every call)."""
     nh, nd = key[1]
-    if len(normals) * 2 * nh * nd * q.wrad.shape[1] * 8 > DESIGN_CACHE_BYTES:
+    if len(normals) * 2 * nh * nd * q.wrad.shape[1] * 8 > _DESIGNS.max_bytes or _DESIGNS.first_sight(key):
         return None
-    with _DESIGNS_LOCK:
-        if key in _designs:
-            _designs.move_to_end(key)
-            return _designs[key]
-        if key not in _designs_seen:
-            _designs_seen[key] = None
-            while len(_designs_seen) > DESIGNS_SEEN:
-                _designs_seen.popitem(last=False)
-            return None
-    design = _design_kernel(normals, q, nh, nd)
-    with _DESIGNS_LOCK:
-        _designs[key] = design
-        while sum(d.nbytes for d in _designs.values()) > DESIGN_CACHE_BYTES:
-            _designs.popitem(last=False)
-    return design
+    return _DESIGNS.get(key, lambda: _design_kernel(normals, q, nh, nd))
 
 
 def second_differences(nh: int, nd: int, d_weight: float = 1.0) -> np.ndarray:
@@ -554,7 +540,7 @@ def _stream(scenes: list[Scene], picks: list[np.ndarray], nh: int, nd: int, chan
             rows = p[start : start + BLOCK_PIXELS]
             w = np.asarray(s.weights, dtype=np.float64)[rows]
             y = np.asarray(s.radiance, dtype=np.float64)[rows]
-            qr.add(_design(q, np.asarray(s.normals)[rows], nh, nd), y, w)
+            qr.add(_design(s.env, q, quad, np.asarray(s.normals)[rows], nh, nd), y, w)
             yy += np.sum(w[:, None] * y**2, axis=0)
             bar.update(len(rows))
     return qr, yy
@@ -567,7 +553,8 @@ def _check_system(scenes: list[Scene], picks: list[np.ndarray], nh: int, nd: int
         if len(p) == 0:
             continue
         sw = np.sqrt(np.asarray(s.weights, dtype=np.float64)[p])
-        blocks.append(_design(lobe_quadrature(s.env, **quad), np.asarray(s.normals)[p], nh, nd) * sw[:, None, None])
+        design = _design(s.env, lobe_quadrature(s.env, **quad), quad, np.asarray(s.normals)[p], nh, nd)
+        blocks.append(design * sw[:, None, None])
         targets.append(np.asarray(s.radiance, dtype=np.float64)[p] * sw[:, None])
     if not blocks:
         return np.zeros((0, 2 * nh * nd, scenes[0].radiance.shape[1])), np.zeros((0, scenes[0].radiance.shape[1]))

@@ -49,7 +49,10 @@ Speed: the base's and the lobe's renders are brute-force quadrature
   alpha = 0.1), several cells wide down to alpha ~ 0.05 (the lower search bound);
 - roughness search: one grid of log-spaced roughnesses renders all channels
   per pass; each channel is then refined by a bounded Brent search on its own
-  bracket, rendering that channel alone.
+  bracket.  Every pass renders all channels (the lobe's evaluation, shared by
+  the channels, is its cost) and is kept in :data:`brdfrig.fit.memo.RENDERS`
+  by pixels, lighting and roughness, so the grid is rendered once for all the
+  fits on one pixel set and lighting.
 
 Relighting (``predict``) bins the environment into cells about half the smallest roughness wide
 (measured < 2e-4 relative error against the full map).
@@ -70,7 +73,8 @@ from brdfrig.fit.brdf import register_model
 from brdfrig.fit.groundtruth import render_ggx_basis, render_groundtruth
 from brdfrig.fit.lsq import polytope_lsq
 from brdfrig.fit.models import DiffuseBRDF
-from brdfrig.fit.scene import Environment, Scene
+from brdfrig.fit.memo import RENDERS
+from brdfrig.fit.scene import Environment, Scene, content_digest
 from brdfrig.fit.shproject import project_environment
 from brdfrig.fit.system import ModelSpec, design_block
 
@@ -261,12 +265,16 @@ def _base_columns(normals: np.ndarray, env: Environment) -> np.ndarray:
     """Renders (N, C, 2) of the base's linear parts: a Lambertian of albedo 1 and the retro term ``retro / pi``.
 
     The retro column is ``(OrenNayar(1, s) - A(s) Lambertian(1)) / B(s)`` for any ``s > 0`` (exact: the
-    Oren-Nayar BRDF is ``(A + B retro) / pi``), rendered by the ground truth's own quadrature.
+    Oren-Nayar BRDF is ``(A + B retro) / pi``), rendered by the ground truth's own quadrature; kept in
+    :data:`brdfrig.fit.memo.RENDERS` (read-only).
     """
-    lam = render_groundtruth(Lambertian(1.0), normals, env)
-    a, b = oren_nayar_ab(1.0)
-    retro = (render_groundtruth(OrenNayar(1.0, 1.0), normals, env) - a * lam) / b
-    return np.stack([lam, retro], axis=2)
+    def render() -> np.ndarray:
+        lam = render_groundtruth(Lambertian(1.0), normals, env)
+        a, b = oren_nayar_ab(1.0)
+        retro = (render_groundtruth(OrenNayar(1.0, 1.0), normals, env) - a * lam) / b
+        return np.stack([lam, retro], axis=2)
+
+    return RENDERS.get(("base columns", content_digest(normals, env)), render)
 
 
 def _oren_nayar(lam: float, retro: float) -> tuple[float, float, bool]:
@@ -292,8 +300,9 @@ def _oren_nayar(lam: float, retro: float) -> tuple[float, float, bool]:
 class _Pixels:
     """A pixel set's weighted data: target (N, C), base columns (N, C, 2), series columns (N, nb, C).
 
-    :meth:`columns` adds the lobe's columns for a roughness, rendering only the channels asked for and
-    keeping the last render per channel (the Brent search ends where the final solve starts).
+    :meth:`columns` adds the lobe's columns for a roughness, rendered for every channel and kept in
+    :data:`brdfrig.fit.memo.RENDERS` (the per-channel searches, the final solves and other fits on the same
+    pixels and lighting visit the same roughnesses).
     """
 
     def __init__(self, scenes, picks, coarse, base_envs, spec: ModelSpec | None, lmax: int) -> None:
@@ -308,19 +317,18 @@ class _Pixels:
             self.series = np.concatenate([design_block(spec, project_environment(s.env, lmax), n) for s, n in zip(scenes, self.normals)])
             self.series *= self.sqrt_w[:, None, None]
         self.renders = 0
-        self._last: dict[int, tuple[float, np.ndarray]] = {}
+        self._geometry = [content_digest(n, e) for n, e in zip(self.normals, coarse)]
+
+    def _lobe(self, alpha: float, normals: np.ndarray, env: Environment) -> np.ndarray:
+        self.renders += 1
+        return render_ggx_basis(alpha, normals, env)
 
     def columns(self, log_alpha: float, chans: list[int]) -> np.ndarray:
         """Weighted non-negative columns (N, len(chans), 4): base (Lambertian, retro), lobe (f0, f90) at exp(log_alpha)."""
-        todo = [c for c in chans if self._last.get(c, (None,))[0] != log_alpha]
-        if todo:
-            envs = [Environment(e.dirs, e.radiance[:, todo], e.solid_angle) for e in self.coarse]
-            lobe = np.concatenate([render_ggx_basis(math.exp(log_alpha), n, e) for n, e in zip(self.normals, envs)])
-            lobe *= self.sqrt_w[:, None, None]
-            self.renders += 1
-            for k, c in enumerate(todo):
-                self._last[c] = (log_alpha, np.concatenate([self.base[:, c], lobe[:, k]], axis=1))
-        return np.stack([self._last[c][1] for c in chans], axis=1)
+        alpha = math.exp(log_alpha)
+        lobe = np.concatenate([RENDERS.get(("ggx basis", g, alpha), lambda n=n, e=e: self._lobe(alpha, n, e))
+                               for n, e, g in zip(self.normals, self.coarse, self._geometry)])
+        return np.concatenate([self.base[:, chans], lobe[:, chans] * self.sqrt_w[:, None, None]], axis=2)
 
 
 def fit_microfacet(

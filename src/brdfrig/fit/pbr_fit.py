@@ -37,8 +37,9 @@ that are rendered once and recombined for free:
   pass per ``alpha`` renders the moments and every IOR or conductor colour is a matrix product.
   Lobes narrower than a cell use the sharp-lobe quadrature (:mod:`brdfrig.fit.quadrature`,
   :func:`brdfrig.fit.pbr.lobe_rule` with :data:`FIT_SUBCELL_WIDTH`; MATH.md pitfall 9).
-  The moments are memoised by the content of the pixels and the lighting (:data:`MOMENTS_MEMO`), so
-  the dielectric and conductor searches of one ``auto`` fit share their ``alpha`` grid's passes.
+  The renders (moments, hats, fuzz columns) are kept by the content of the pixels and the lighting in
+  :data:`brdfrig.fit.memo.RENDERS`, so the dielectric and conductor searches of one ``auto`` fit share their
+  ``alpha`` grid's passes, and fits of other images on the same pixels and lighting reuse them.
 
 Search bounds: ``alpha`` in :data:`ALPHA_BOUNDS`, fuzz alpha in :data:`FUZZ_ALPHA_BOUNDS`, IOR in
 :data:`IOR_BOUNDS`; an optimum on a bound is reported (``at_bound``, ``determined``).
@@ -48,7 +49,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import OrderedDict
 
 import numba
 import numpy as np
@@ -64,6 +64,7 @@ from brdfrig.fit.analytic import (
 )
 from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
+from brdfrig.fit.memo import RENDERS
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
 from brdfrig.fit.microfacet import _check_scenes, _oren_nayar, _subsample, coarsen_environment
 from brdfrig.fit.pbr import (
@@ -102,10 +103,6 @@ for the sharpest lobes, the renders differing by about 1e-3 (the search's own to
 DB_MAX = 0.45
 """Upper bound of the retro amplitude ``dB = base B(s)`` (``B < 0.45`` for every ``s``)."""
 LOBE_MIN_FRACTION = 1e-3
-MOMENTS_MEMO = 48
-"""Lobe-moment renders kept by :meth:`_Data.moments` (one is N x C x (FRESNEL_DEGREE + 1) floats, 0.6 MB at
-2000 pixels): the dielectric and the conductor searches of one ``auto`` fit render the same ``alpha`` grid on
-the same pixels, and a search's final solve re-renders its optimum."""
 
 
 _SCHLICK = (_legendre_fit(lambda c: 1 - (1 - c) ** 5), _legendre_fit(lambda c: (1 - c) ** 5),
@@ -172,10 +169,6 @@ def _hat_kernel(normals, dirs, weighted, view):
     return out
 
 
-_moments_memo: OrderedDict = OrderedDict()
-"""``(geometry digest, alpha, lobe rule, fuzz table bytes)`` -> unweighted lobe moments (:data:`MOMENTS_MEMO` kept)."""
-
-
 class _Data:
     """A pixel set's weighted target and the renders shared by every evaluation of the search."""
 
@@ -185,10 +178,10 @@ class _Data:
         self.sqrt_w = np.sqrt(np.concatenate([np.asarray(s.weights, dtype=np.float64)[p] for s, p in zip(scenes, picks)]))
         self.target = np.concatenate([np.asarray(s.radiance, dtype=np.float64)[p] for s, p in zip(scenes, picks)]) * self.sqrt_w[:, None]
         self.cos_o = np.concatenate([n[:, 2] for n in self.normals])
-        self.hats = np.concatenate([_hat_kernel(*_kernel_inputs(n, e, (0.0, 0.0, 1.0))) for n, e in zip(self.normals, envs)])
-        self.hats *= self.sqrt_w[:, None, None, None]
         self.geometry = [content_digest(n, e) for n, e in zip(self.normals, envs)]
-        self.renders = 1
+        self.renders = 0
+        self.hats = np.concatenate([self._kept(("hats", g), _hat_kernel, *_kernel_inputs(n, e, (0.0, 0.0, 1.0)))
+                                    for n, e, g in zip(self.normals, envs, self.geometry)]) * self.sqrt_w[:, None, None, None]
         self._quadratures: dict = {}
 
     def base(self, t: np.ndarray) -> np.ndarray:
@@ -196,19 +189,20 @@ class _Data:
         scale = table_values(t, self.cos_o) / _base_norm(t)
         return np.einsum("nckr,k->ncr", self.hats, t) * scale[:, None, None]
 
+    def _kept(self, key: tuple, kernel, *args) -> np.ndarray:
+        """``kernel(*args)``, kept in :data:`brdfrig.fit.memo.RENDERS` under ``key`` (:attr:`renders` counts the passes)."""
+        def render() -> np.ndarray:
+            self.renders += 1
+            return kernel(*args)
+
+        return RENDERS.get(key, render)
+
     def moments(self, alpha: float, fuzz_row: np.ndarray) -> np.ndarray:
-        """Weighted Fresnel moments (N, C, FRESNEL_DEGREE + 1) of the GGX lobe, memoised by content (:data:`MOMENTS_MEMO`)."""
+        """Weighted Fresnel moments (N, C, FRESNEL_DEGREE + 1) of the GGX lobe, kept by content."""
         fuzz_t = np.ascontiguousarray(fuzz_row[LAYERED_HEAD + TABLE_SIZE : LAYERED_HEAD + 2 * TABLE_SIZE])
-        parts = []
-        for n, e, g in zip(self.normals, self.envs, self.geometry):
-            key = (g, float(alpha), lobe_rule(alpha, e, FIT_SUBCELL_WIDTH), fuzz_t.tobytes())
-            if key not in _moments_memo:
-                _moments_memo[key] = _lobe_moments_kernel(alpha, fuzz_t, self.quadrature(e, alpha), np.ascontiguousarray(n), FRESNEL_DEGREE)
-                self.renders += 1
-                if len(_moments_memo) > MOMENTS_MEMO:
-                    _moments_memo.popitem(last=False)
-            _moments_memo.move_to_end(key)
-            parts.append(_moments_memo[key])
+        parts = [self._kept(("lobe moments", g, float(alpha), lobe_rule(alpha, e, FIT_SUBCELL_WIDTH), fuzz_t.tobytes()),
+                            _lobe_moments_kernel, alpha, fuzz_t, self.quadrature(e, alpha), np.ascontiguousarray(n), FRESNEL_DEGREE)
+                 for n, e, g in zip(self.normals, self.envs, self.geometry)]
         return np.concatenate(parts) * self.sqrt_w[:, None, None]
 
     def quadrature(self, env: Environment, alpha: float):
@@ -220,9 +214,9 @@ class _Data:
         return self._quadratures[key]
 
     def fuzz(self, fuzz_alpha: float) -> np.ndarray:
-        """Weighted fuzz column (N, C) of unit colour."""
-        self.renders += 1
-        return np.concatenate([render_fuzz(fuzz_alpha, n, e) for n, e in zip(self.normals, self.envs)]) * self.sqrt_w[:, None]
+        """Weighted fuzz column (N, C) of unit colour, kept by content."""
+        return np.concatenate([self._kept(("fuzz", g, float(fuzz_alpha)), render_fuzz, fuzz_alpha, n, e)
+                               for n, e, g in zip(self.normals, self.envs, self.geometry)]) * self.sqrt_w[:, None]
 
 
 def shared_solve(per_channel: np.ndarray, shared: np.ndarray | None, target: np.ndarray, upper: np.ndarray):
