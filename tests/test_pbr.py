@@ -206,9 +206,10 @@ def test_sharp_lobe_quadrature_converges():
 
 @pytest.mark.parametrize("name", list(FAMILIES))
 def test_channels_share_the_shape_to_the_last_bit(name):
-    """``rho_channels`` with the shape evaluated once equals ``rho_channel`` per channel exactly (the renders'
-    speed-up must not change a value), also where a channel's amplitude is 0."""
-    from brdfrig.fit.rho import rho_channel, rho_channels, shares_shape
+    """``rho_channels`` with the shape evaluated once, and the view's factors once per pixel (``rho_view``), equals
+    ``rho_channel`` per channel exactly (the renders' speed-up must not change a value), also where a channel's
+    amplitude is 0."""
+    from brdfrig.fit.rho import rho_channel, rho_channels, rho_view, shares_shape
 
     brdf = FAMILIES[name]
     params = np.array(brdf.kernel_params(), dtype=np.float64)
@@ -220,7 +221,7 @@ def test_channels_share_the_shape_to_the_last_bit(name):
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     out = np.empty(params.shape[0])
     for a, b in zip(wi, wo):
-        rho_channels(brdf.kind, params, True, a[2], b[2], float(a @ b), out)
+        rho_channels(brdf.kind, params, True, a[2], b[2], float(a @ b), rho_view(brdf.kind, params, True, b[2]), out)
         assert out.tolist() == [rho_channel(brdf.kind, p, a[2], b[2], float(a @ b)) for p in params]
     other = params.copy()
     other[2, 3] *= 1.5  # another roughness in one channel: not shared

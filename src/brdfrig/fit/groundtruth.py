@@ -33,7 +33,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe, kernel_rows, rho_channels, sheen_lambda
+from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe_given, kernel_rows, rho_channels, rho_view, sheen_lambda, smith_lambda
 from brdfrig.fit.merl import half_diff, table_lookup
 from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
@@ -85,11 +85,12 @@ def render_kernel(
             continue
         acc = np.zeros(nc)
         val = np.empty(nc)
+        view_terms = rho_view(kind, params, shared, cos_o)
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
-            rho_channels(kind, params, shared, cos_i, cos_o, cos_io[j], val)
+            rho_channels(kind, params, shared, cos_i, cos_o, cos_io[j], view_terms, val)
             for c in range(nc):
                 acc[c] += weighted_radiance[j, c] * val[c] * cos_i
         for c in range(nc):
@@ -113,11 +114,12 @@ def _ggx_basis_kernel(
         if cos_o <= 0.0:
             continue
         acc = np.zeros((nc, 2))
+        lambda_o = smith_lambda(cos_o, alpha)
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
-            lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io[j], alpha)
+            lobe, cos_d = ggx_lobe_given(cos_i, cos_o, cos_io[j], alpha, lambda_o)
             b1 = lobe * (1.0 - cos_d) ** 5 * cos_i
             b0 = lobe * cos_i - b1
             for c in range(nc):

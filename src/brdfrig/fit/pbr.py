@@ -69,7 +69,7 @@ from brdfrig.fit.analytic import (
 )
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
-from brdfrig.fit.rho import kernel_rows, rho_channels
+from brdfrig.fit.rho import kernel_rows, rho_channels, rho_view
 
 __all__ = [
     "COS_NODES",
@@ -315,9 +315,10 @@ def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray, shared:
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
         acc = np.zeros(nc)
         val = np.empty(nc)
+        view_terms = rho_view(kind, params, shared, nz)
         for k in range(dirs.shape[0]):
             cos_i = nx * dirs[k, 0] + ny * dirs[k, 1] + nz * dirs[k, 2]
-            rho_channels(kind, params, shared, cos_i, nz, dirs[k, 2], val)
+            rho_channels(kind, params, shared, cos_i, nz, dirs[k, 2], view_terms, val)
             for c in range(nc):
                 acc[c] += wrad[k, c] * val[c] * cos_i
         out[i] = acc

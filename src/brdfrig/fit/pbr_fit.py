@@ -59,13 +59,13 @@ from brdfrig.fit.analytic import (
     LAYERED_HEAD,
     TABLE_SIZE,
     f82_q,
-    ggx_lobe,
     table_lookup,
 )
 from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
 from brdfrig.fit.memo import RENDERS
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
+from brdfrig.fit.rho import ggx_lobe_given, smith_lambda
 from brdfrig.fit.microfacet import _check_scenes, _oren_nayar, _subsample, coarsen_environment
 from brdfrig.fit.pbr import (
     FRESNEL_DEGREE,
@@ -124,11 +124,12 @@ def _lobe_moments_kernel(alpha, fuzz_t, q, normals, degree):
             continue
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
         m_o = table_lookup(fuzz_t, 0, nz)
+        lambda_o = smith_lambda(nz, alpha)
         acc = np.zeros((nc, degree + 1))
         leg = np.empty(degree + 1)
         for j in range(dirs.shape[0]):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
-            lobe, cos_d = ggx_lobe(cos_i, nz, dirs[j, 2], alpha)
+            lobe, cos_d = ggx_lobe_given(cos_i, nz, dirs[j, 2], alpha, lambda_o)
             val = lobe * cos_i * min(m_o, table_lookup(fuzz_t, 0, cos_i))
             if val == 0.0:
                 continue

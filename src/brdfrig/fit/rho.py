@@ -35,6 +35,7 @@ __all__ = [
     "ggx_ndf",
     "smith_lambda",
     "ggx_lobe",
+    "ggx_lobe_given",
     "oren_nayar_ab",
     "oren_nayar_factor",
     "table_lookup",
@@ -46,6 +47,7 @@ __all__ = [
     "layered_rho",
     "conductor_rho",
     "rho_channel",
+    "rho_view",
     "rho_channels",
     "shares_shape",
     "kernel_rows",
@@ -88,6 +90,12 @@ def ggx_lobe(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> tuple[f
     Both directions must be above the horizon (``cos_i, cos_o > 0``); returns
     (0, 1) when ``wi = -wo`` (no half vector).
     """
+    return ggx_lobe_given(cos_i, cos_o, cos_io, alpha, smith_lambda(cos_o, alpha))
+
+
+@numba.njit(cache=True, fastmath=False)
+def ggx_lobe_given(cos_i: float, cos_o: float, cos_io: float, alpha: float, lambda_o: float) -> tuple[float, float]:
+    """:func:`ggx_lobe` with ``lambda_o = smith_lambda(cos_o, alpha)`` given (one per pixel, not per light sample)."""
     # Half vector h = (wi + wo) / |wi + wo|; |wi + wo|^2 = 2 + 2 wi.wo.
     norm2 = 2.0 + 2.0 * cos_io
     if norm2 <= 1e-300:
@@ -95,7 +103,7 @@ def ggx_lobe(cos_i: float, cos_o: float, cos_io: float, alpha: float) -> tuple[f
     inv = 1.0 / math.sqrt(norm2)
     cos_h = (cos_i + cos_o) * inv
     cos_d = min((1.0 + cos_io) * inv, 1.0)  # h.wi = h.wo
-    g2 = 1.0 / (1.0 + smith_lambda(cos_i, alpha) + smith_lambda(cos_o, alpha))
+    g2 = 1.0 / (1.0 + smith_lambda(cos_i, alpha) + lambda_o)
     return ggx_ndf(cos_h, alpha) * g2 / (4.0 * cos_i * cos_o), cos_d
 
 
@@ -207,18 +215,35 @@ are its shape."""
 
 
 @numba.njit(cache=True, fastmath=False)
-def _layered_terms(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float, base: bool, spec: bool, fuzz: bool):
-    """The shape factors ``(retro, t, lobe, m, fresnel, sheen)`` of :func:`layered_rho`, those of the parts not asked for 0."""
+def _layered_view(p: np.ndarray, cos_o: float, base: bool, spec: bool, fuzz: bool):
+    """The factors of :func:`_layered_terms` that depend on the view alone: ``(base, spec, fuzz,
+    t(cos_o), 1 - E_fuzz(cos_o), Lambda_GGX(cos_o), Lambda_sheen(cos_o))``, those of the parts not asked for 0."""
+    t_o = m_o = lam_o = sheen_o = 0.0
+    if base:
+        t_o = table_lookup(p, LAYERED_HEAD, cos_o)
+    if spec:
+        m_o = table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_o)
+        lam_o = smith_lambda(cos_o, p[3])
+    if fuzz:
+        sheen_o = sheen_lambda(cos_o, p[6])
+    return base, spec, fuzz, t_o, m_o, lam_o, sheen_o
+
+
+@numba.njit(cache=True, fastmath=False)
+def _layered_terms(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float, view):
+    """The shape factors ``(retro, t, lobe, m, fresnel, sheen)`` of :func:`layered_rho`, those of the parts not asked for 0
+    (``view``: :func:`_layered_view` at ``cos_o``)."""
+    base, spec, fuzz, t_o, m_o, lam_o, sheen_o = view
     retro = t = lobe = m = fres = sheen = 0.0
     if base:
         retro = max(cos_io - cos_i * cos_o, 0.0) / max(cos_i, cos_o)
-        t = table_lookup(p, LAYERED_HEAD, cos_i) * table_lookup(p, LAYERED_HEAD, cos_o) * p[7]
+        t = table_lookup(p, LAYERED_HEAD, cos_i) * t_o * p[7]
     if spec:
-        lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, p[3])
-        m = min(table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_i), table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_o))
+        lobe, cos_d = ggx_lobe_given(cos_i, cos_o, cos_io, p[3], lam_o)
+        m = min(table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_i), m_o)
         fres = fresnel_dielectric(cos_d, p[4])
     if fuzz:
-        sheen = charlie_sheen(cos_i, cos_o, cos_io, p[6])
+        sheen = charlie_sheen_given(cos_i, cos_o, cos_io, p[6], sheen_o)
     return retro, t, lobe, m, fres, sheen
 
 
@@ -242,8 +267,8 @@ def layered_rho(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float) -> flo
     ``rho = fuzz_color sheen + m(i,o) w F_ior(h.wi) D G2 / (4 cos_i cos_o)
     + t(cos_i) t(cos_o) / norm (dA + dB retro) / pi`` with ``m = min(1 - E_fuzz(cos_i), 1 - E_fuzz(cos_o))``.
     """
-    retro, t, lobe, m, fres, sheen = _layered_terms(p, cos_i, cos_o, cos_io, p[0] != 0.0 or p[1] != 0.0, p[2] != 0.0, p[5] != 0.0)
-    return _layered_combine(p, retro, t, lobe, m, fres, sheen)
+    view = _layered_view(p, cos_o, p[0] != 0.0 or p[1] != 0.0, p[2] != 0.0, p[5] != 0.0)
+    return _layered_combine(p, *_layered_terms(p, cos_i, cos_o, cos_io, view))
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -318,25 +343,39 @@ def kernel_rows(brdf, channels: int) -> tuple[np.ndarray, bool]:
 
 
 @numba.njit(cache=True, fastmath=False)
-def rho_channels(kind: int, params: np.ndarray, shared: bool, cos_i: float, cos_o: float, cos_io: float, out: np.ndarray) -> None:
+def rho_view(kind: int, params: np.ndarray, shared: bool, cos_o: float):
+    """The factors of :func:`rho_channels` that depend on the view alone (``cos_o > 0``), computed once per pixel:
+    :func:`_layered_view` of the shared shape (conductor: its ``Lambda(cos_o)`` in the same slot; neither shared
+    nor layered or conductor: unused)."""
+    if not shared or cos_o <= 0.0 or kind not in (KIND_LAYERED, KIND_CONDUCTOR):
+        return False, False, False, 0.0, 0.0, 0.0, 0.0
+    if kind == KIND_CONDUCTOR:
+        return False, True, False, 0.0, 0.0, smith_lambda(cos_o, params[0, 3]), 0.0
+    base = spec = fuzz = False
+    for c in range(params.shape[0]):
+        base = base or params[c, 0] != 0.0 or params[c, 1] != 0.0
+        spec = spec or params[c, 2] != 0.0
+        fuzz = fuzz or params[c, 5] != 0.0
+    return _layered_view(params[0], cos_o, base, spec, fuzz)
+
+
+@numba.njit(cache=True, fastmath=False)
+def rho_channels(kind: int, params: np.ndarray, shared: bool, cos_i: float, cos_o: float, cos_io: float, view,
+                 out: np.ndarray) -> None:
     """``out[c] = rho_channel(kind, params[c], ...)`` for every channel; with ``shared`` (:func:`shares_shape`) the
-    shape factors are computed once for all channels (the same values to the last bit)."""
+    shape factors are computed once for all channels, those of the view once per pixel (``view``:
+    :func:`rho_view` at ``cos_o``): the same values to the last bit."""
     nc = params.shape[0]
     if not shared or cos_i <= 0.0 or cos_o <= 0.0:
         for c in range(nc):
             out[c] = rho_channel(kind, params[c], cos_i, cos_o, cos_io)
         return
     if kind == KIND_CONDUCTOR:
-        lobe, cos_d = ggx_lobe(cos_i, cos_o, cos_io, params[0, 3])
+        lobe, cos_d = ggx_lobe_given(cos_i, cos_o, cos_io, params[0, 3], view[5])
         for c in range(nc):
             out[c] = _conductor_combine(params[c], lobe, cos_d)
         return
-    base = spec = fuzz = False
-    for c in range(nc):
-        base = base or params[c, 0] != 0.0 or params[c, 1] != 0.0
-        spec = spec or params[c, 2] != 0.0
-        fuzz = fuzz or params[c, 5] != 0.0
-    retro, t, lobe, m, fres, sheen = _layered_terms(params[0], cos_i, cos_o, cos_io, base, spec, fuzz)
+    retro, t, lobe, m, fres, sheen = _layered_terms(params[0], cos_i, cos_o, cos_io, view)
     for c in range(nc):
         out[c] = _layered_combine(params[c], retro, t, lobe, m, fres, sheen)
 
