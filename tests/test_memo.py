@@ -62,13 +62,12 @@ def test_second_sight_keeps_an_array_only_when_asked_again():
 def _scenes(size: int = 16):
     from brdfrig.evaluate.probes import probe_environment
     from brdfrig.fit.pbr import SheenBRDF
+    from brdfrig.hdr.sphere import sphere_pixels
 
     if not PROBE_DIR.is_dir():
         pytest.skip("../shared/data/probes is absent")
-    y, x = np.mgrid[0:size, 0:size] + 0.5
-    dx, dy = (x - size / 2) / (size / 2), (size / 2 - y) / (size / 2)
-    inside = dx**2 + dy**2 < 0.95**2
-    normals = np.stack([dx[inside], dy[inside], np.sqrt(1 - dx[inside] ** 2 - dy[inside] ** 2)], axis=1)
+    px = sphere_pixels((size, size), (size / 2, size / 2, size / 2))
+    normals = np.ascontiguousarray(px.normals[px.weights > 0])
     env = probe_environment("grace", 32, PROBE_DIR)
     brdfs = (SheenBRDF([0.5, 0.3, 0.2], fuzz_color=[0.3, 0.3, 0.5], fuzz_roughness=0.5, specular_roughness=0.4),
              SheenBRDF([0.2, 0.4, 0.6], fuzz_color=[0.6, 0.2, 0.1], fuzz_roughness=0.7, specular_roughness=0.25))
