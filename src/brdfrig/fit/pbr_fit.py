@@ -313,14 +313,9 @@ def _fit_layered(data: _Data, family: str, coat: bool, ior: float | None, bar) -
     """Shape search and final amplitudes of the dielectric or sheen family: (brdf, report entries)."""
     fuzz = family == "sheen"
     prob = _Dielectric(data, coat, fuzz, ior)
-    fuzz_cols: dict[float, np.ndarray] = {}
 
     def fuzz_col(fa: float):
-        if not fuzz:
-            return None
-        if fa not in fuzz_cols:
-            fuzz_cols[fa] = data.fuzz(fa)
-        return fuzz_cols[fa]
+        return data.fuzz(fa) if fuzz else None
 
     at_bound = {}
     fuzz_alpha, alpha, e, fw = 0.25, 0.1, 1.5 if ior is None else ior, 1.0
