@@ -89,21 +89,49 @@ class CachedGroundTruth:
 
     def __call__(self, brdf, normals, env, identity: bytes | None = None) -> np.ndarray:
         """The render of ``brdf`` at ``normals`` under ``env`` (view +z): from the cache, else rendered and stored."""
+        return self.renders(brdf, normals, [env], identity)[0]
+
+    def renders(self, brdf, normals, envs, identity: bytes | None = None) -> list[np.ndarray]:
+        """The render of ``brdf`` at ``normals`` under each of ``envs`` (view +z), each from the cache or rendered and
+        stored.  Missing renders under lightings on the same samples are rendered in one call under them stacked
+        (:func:`brdfrig.fit.scene.stack_lightings`), when the BRDF's ``stacks_lightings`` says it renders so."""
+        from brdfrig.fit.scene import group_by_samples, stack_lightings
+
+        paths = [self.directory / f"gt-{self.key(brdf, normals, env, identity=identity)}.npy" for env in envs]
+        out = [self._load(path, (len(normals), env.channels)) for path, env in zip(paths, envs)]
+        missing = [k for k, image in enumerate(out) if image is None]
+        self.hits += len(envs) - len(missing)
+        self.misses += len(missing)
+        for group in group_by_samples([envs[k] for k in missing]):
+            group = [missing[k] for k in group]
+            if len(group) > 1 and getattr(brdf, "stacks_lightings", False):
+                image = self._render_one(brdf, normals, stack_lightings([envs[k] for k in group]))
+                images = np.split(image, len(group), axis=1)
+            else:
+                images = [self._render_one(brdf, normals, envs[k]) for k in group]
+            for k, image in zip(group, images):
+                self._store(paths[k], image)
+                out[k] = image
+        return out
+
+    def _render_one(self, brdf, normals, env) -> np.ndarray:
+        return np.asarray(self._renderer()(brdf, normals, env), dtype=np.float64)
+
+    @staticmethod
+    def _load(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
+        """The cached render at ``path``, or None if absent, unreadable, of another shape or not finite."""
+        if not path.is_file():
+            return None
+        try:
+            cached = np.load(path)
+        except (OSError, ValueError, EOFError):
+            return None
+        return cached if cached.shape == shape and np.all(np.isfinite(cached)) else None
+
+    def _store(self, path: Path, image: np.ndarray) -> None:
         from brdfrig._atomic import write_bytes as atomic_write_bytes
 
-        path = self.directory / f"gt-{self.key(brdf, normals, env, identity=identity)}.npy"
-        if path.is_file():
-            try:
-                cached = np.load(path)
-            except (OSError, ValueError, EOFError):
-                cached = None
-            if cached is not None and cached.shape == (len(normals), env.channels) and np.all(np.isfinite(cached)):
-                self.hits += 1
-                return cached
-        self.misses += 1
-        image = np.asarray(self._renderer()(brdf, normals, env), dtype=np.float64)
         buf = io.BytesIO()
-        np.save(buf, image)
+        np.save(buf, np.ascontiguousarray(image))
         self.directory.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(path, buf.getvalue())
-        return image

@@ -140,6 +140,11 @@ class Material:
             self.brdf = load_measured(self.path)
         return self.brdf
 
+    @property
+    def stacks_lightings(self) -> bool:
+        """Whether the BRDF renders under stacked lightings (:class:`~brdfrig.evaluate.cache.CachedGroundTruth`)."""
+        return bool(getattr(self.load(), "stacks_lightings", False))
+
     def identity(self) -> bytes:
         """Cache identity: sha256 of the file (and its ``.json`` beside it), else of the BRDF's values, and of
         the source of the modules that render it (:func:`_renderer_sources`)."""
@@ -306,14 +311,11 @@ def render_truth(material: Material, setup: CaseSetup = CaseSetup(), cache: Cach
     cache = make_cache() if cache is None else cache
     rows, cols, normals, weights = _sphere(setup.size)
     fit_env = probe_environment(setup.fit_probe, setup.env_rows, setup.probe_dir)
-    scenes = []
-    for rotation in scene_rotations(setup):
-        env = fit_env if rotation is None else fit_env.rotated(rotation)
-        scenes.append(Scene(env, normals, cache(material, normals, env, identity=material.identity()), weights))
-    relight = {}
-    for name in setup.relight_probes:
-        env = probe_environment(name, setup.env_rows, setup.probe_dir)
-        relight[name] = (env, cache(material, normals, env, identity=material.identity()))
+    fit_envs = [fit_env if rotation is None else fit_env.rotated(rotation) for rotation in scene_rotations(setup)]
+    relight_envs = [probe_environment(name, setup.env_rows, setup.probe_dir) for name in setup.relight_probes]
+    images = cache.renders(material, normals, fit_envs + relight_envs, identity=material.identity())
+    scenes = [Scene(env, normals, image, weights) for env, image in zip(fit_envs, images)]
+    relight = {name: (env, image) for name, env, image in zip(setup.relight_probes, relight_envs, images[len(fit_envs):])}
     return Truth(material, setup, rows, cols, normals, weights, scenes, relight)
 
 
@@ -408,14 +410,17 @@ def noisy_scenes(scenes: list[Scene], noise: float, seed: int = 0) -> list[Scene
 
 def relight_fits(truth: Truth, brdfs: dict) -> dict[str, tuple[dict[str, float], dict[str, np.ndarray]]]:
     """name -> (errors, relit radiance) of each BRDF in ``brdfs`` under every relight probe of ``truth``
-    (:func:`brdfrig.fit.relight.predict_under`: the tables share their design)."""
+    (:func:`brdfrig.fit.relight.predict_under`: the tables share their design, the analytic ones render under
+    all the probes at once)."""
     from brdfrig.fit.relight import predict_under
 
+    probes = list(truth.relight)
+    preds = predict_under(brdfs, [truth.relight[p][0] for p in probes], truth.normals)
     out = {m: ({}, {}) for m in brdfs}
-    for probe, (env, reference) in truth.relight.items():
-        for m, pred in predict_under(brdfs, [env], truth.normals).items():
-            out[m][1][probe] = pred[0]
-            out[m][0][probe] = relative_rms(pred[0], reference, truth.weights)
+    for m, pred in preds.items():
+        for k, probe in enumerate(probes):
+            out[m][1][probe] = pred[k]
+            out[m][0][probe] = relative_rms(pred[k], truth.relight[probe][1], truth.weights)
     return out
 
 

@@ -107,6 +107,8 @@ class AnalyticBRDF:
 
     model: str
     kind: int
+    stacks_lightings = True
+    """:meth:`predict` renders under stacked lightings (:func:`brdfrig.fit.scene.stack_lightings`)."""
 
     @property
     def channels(self) -> int:

@@ -219,7 +219,7 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
     (N, C) float64 linear radiance, 0 where ``normal . view <= 0``.
     """
     normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
-    params, shared = kernel_rows(brdf, weighted.shape[1])
+    params, shared = kernel_rows(brdf, weighted.shape[1], env.lightings)
     return render_kernel(int(brdf.kind), params, normals, dirs, weighted, view, shared)
 
 
@@ -227,35 +227,39 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _table_kernel(log_table: np.ndarray, q, normals: np.ndarray) -> np.ndarray:
-    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of a filled log1p MERL-grid table, view +z."""
+def _table_kernel(log_table: np.ndarray, q, normals: np.ndarray, n_out: int) -> np.ndarray:
+    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of a filled log1p MERL-grid table, view +z;
+    ``n_out`` output channels, channel ``c`` lit by the lighting's channel ``c`` and the table's ``c mod C``
+    (stacked lightings: :attr:`~brdfrig.fit.scene.Environment.lightings`)."""
     n_pix = normals.shape[0]
     nc = log_table.shape[3]
-    out = np.zeros((n_pix, nc))
+    out = np.zeros((n_pix, n_out))
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         if nz <= 0.0:
             continue
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
         val = np.empty(nc)
-        acc = np.zeros(nc)
+        acc = np.zeros(n_out)
         for k in range(dirs.shape[0]):
             wx, wy, wz = dirs[k, 0], dirs[k, 1], dirs[k, 2]
             cos_i = nx * wx + ny * wy + nz * wz
             th, td, pd = half_diff(wx, wy, wz, 0.0, 0.0, 1.0, nx, ny, nz)
             table_lookup(log_table, th, td, pd, val)
-            for c in range(nc):
-                acc[c] += wrad[k, c] * val[c] * cos_i
-        for c in range(nc):
+            for c in range(n_out):
+                acc[c] += wrad[k, c] * val[c % nc] * cos_i
+        for c in range(n_out):
             out[i, c] = acc[c]
     return out
 
 
 def _lobe_inputs(normals, env: Environment, channels: int, cone_deg, subdiv):
-    """Contiguous normals and the prepared :class:`~brdfrig.fit.quadrature.LobeQuadrature`; checks channels."""
+    """Contiguous normals and the prepared :class:`~brdfrig.fit.quadrature.LobeQuadrature`; checks channels
+    (``channels`` per lighting of ``env``, :attr:`~brdfrig.fit.scene.Environment.lightings`)."""
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-    if env.channels != channels:
-        raise ValueError(f"BRDF has {channels} channels but the environment has {env.channels}")
+    if env.channels != channels * env.lightings:
+        raise ValueError(f"BRDF has {channels} channels but the environment has {env.channels}"
+                         + (f" ({env.lightings} lightings)" if env.lightings > 1 else ""))
     cone = DEFAULT_CONE_DEG if cone_deg is None else cone_deg
     s = DEFAULT_SUBDIV if subdiv is None else subdiv
     return normals, lobe_quadrature(env, cone, s)
@@ -272,18 +276,19 @@ def render_tabulated(brdf, normals: np.ndarray, env: Environment, cone_deg: floa
         Unit surface normals (world frame).
     env : Environment
         Lighting; its lat-long map (when kept) is integrated over the cells near
-        each mirror direction (:mod:`brdfrig.fit.quadrature`).
+        each mirror direction (:mod:`brdfrig.fit.quadrature`).  Stacked lightings
+        (:func:`~brdfrig.fit.scene.stack_lightings`) render in one pass.
     cone_deg, subdiv : float, int, optional
         Cone and subdivision of the quadrature (defaults
         :data:`~brdfrig.fit.quadrature.DEFAULT_CONE_DEG`, :data:`~brdfrig.fit.quadrature.DEFAULT_SUBDIV`).
 
     Returns
     -------
-    (N, C) float64 linear radiance, 0 where ``n_z <= 0``.
+    (N, env.channels) float64 linear radiance, 0 where ``n_z <= 0``.
     """
     log_table = np.ascontiguousarray(brdf.log_filled)
     normals, q = _lobe_inputs(normals, env, log_table.shape[3], cone_deg, subdiv)
-    return _table_kernel(log_table, q, normals)
+    return _table_kernel(log_table, q, normals, env.channels)
 
 
 def render_rho(brdf, normals: np.ndarray, env: Environment, cone_deg: float | None = None, subdiv: int | None = None,
@@ -296,7 +301,7 @@ def render_rho(brdf, normals: np.ndarray, env: Environment, cone_deg: float | No
     directly) and as an oracle.  Parameters and result as :func:`render_tabulated`.
     """
     normals, q = _lobe_inputs(normals, env, brdf.channels, cone_deg, subdiv)
-    out = np.zeros((normals.shape[0], brdf.channels))
+    out = np.zeros((normals.shape[0], env.channels))
     view = np.array([0.0, 0.0, 1.0])
     pending: list[tuple[int, np.ndarray, np.ndarray]] = []
 
@@ -307,7 +312,7 @@ def render_rho(brdf, normals: np.ndarray, env: Environment, cone_deg: float | No
             wi = np.concatenate([d for _, d, _ in pending])
             wrad = np.concatenate([w for _, _, w in pending])
             n = np.repeat(normals[pix], counts, axis=0)
-            terms = wrad * brdf.rho(wi, view, n) * np.einsum("ij,ij->i", wi, n)[:, None]
+            terms = wrad * np.tile(brdf.rho(wi, view, n), env.lightings) * np.einsum("ij,ij->i", wi, n)[:, None]
             out[pix] = np.add.reduceat(terms, np.concatenate([[0], np.cumsum(counts)[:-1]]), axis=0)
         pending.clear()
 

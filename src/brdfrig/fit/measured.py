@@ -186,6 +186,8 @@ class _MeasuredBRDF:
     """Shared ``evaluate`` of the measured BRDFs (through ``rho`` in the local frame)."""
 
     channels: int
+    stacks_lightings = True
+    """``predict`` renders under stacked lightings (:func:`brdfrig.fit.scene.stack_lightings`)."""
 
     def rho(self, wi, wo, n) -> np.ndarray:
         raise NotImplementedError

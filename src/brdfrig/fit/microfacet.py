@@ -136,6 +136,11 @@ class MicrofacetBRDF:
     def channels(self) -> int:
         return self.analytic.channels
 
+    @property
+    def stacks_lightings(self) -> bool:
+        """:meth:`predict` renders under stacked lightings (:func:`brdfrig.fit.scene.stack_lightings`): without a series."""
+        return self.series is None
+
     def predict(self, env: Environment, normals: np.ndarray) -> np.ndarray:
         """Radiance (N, C) seen from ``v = (0, 0, 1)``: the analytic part by quadrature, the series through SH.
 
@@ -201,7 +206,7 @@ def coarsen_environment(env: Environment, rows: int = DEFAULT_ENV_ROWS) -> Envir
     d = np.stack([np.bincount(inverse, weights=omega * dirs[:, a], minlength=k) for a in range(3)], axis=1)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     e = np.stack([np.bincount(inverse, weights=omega * rad[:, c], minlength=k) for c in range(rad.shape[1])], axis=1)
-    return Environment(d, e / w[:, None], w)
+    return Environment(d, e / w[:, None], w, lightings=env.lightings)
 
 
 def _subsample(scenes: list[Scene], max_pixels: int, rng: np.random.Generator) -> tuple[list[np.ndarray], list[np.ndarray]]:

@@ -331,7 +331,7 @@ def render_sharp(brdf, normals: np.ndarray, env, cone_deg: float, subdiv: int) -
     The ground truth's rule (:func:`brdfrig.fit.groundtruth.render_groundtruth`) with the cells within
     ``cone_deg`` of each mirror direction split ``subdiv x subdiv`` (:mod:`brdfrig.fit.quadrature`).
     """
-    params, shared = kernel_rows(brdf, env.channels)
+    params, shared = kernel_rows(brdf, env.channels, env.lightings)
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
     return _sharp_kernel(int(brdf.kind), params, lobe_quadrature(env, cone_deg, subdiv), normals, shared)
 

@@ -65,7 +65,7 @@ from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.rotation import axis_rotation
-from brdfrig.fit.scene import Environment
+from brdfrig.fit.scene import Environment, group_by_samples, stack_lightings
 from brdfrig.fit.stream import FitData
 
 __all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "CALIBRATED_FOR", "LOSO_MAX_FOLDS", "FOLD_SPLITS", "other_lightings", "loso_folds", "estimate_pixels",
@@ -134,23 +134,33 @@ def predict_under(brdfs: dict, envs: list[Environment], normals: np.ndarray) -> 
 
     The tabulated ones (:class:`~brdfrig.fit.bivariate.BivariateBRDF`, and the parts of each
     :class:`~brdfrig.fit.blend.BlendBRDF`) share one pass over the quadrature per lighting
-    (:func:`~brdfrig.fit.bivariate.predict_tables`); the others use their own ``predict``.
+    (:func:`~brdfrig.fit.bivariate.predict_tables`).  A BRDF whose ``stacks_lightings`` is true renders
+    once under all the lightings (:func:`~brdfrig.fit.scene.stack_lightings`) when they share their samples;
+    the others use their own ``predict`` per lighting.
     """
     tables = {id(b): b for b in brdfs.values() if isinstance(b, BivariateBRDF)}
     for b in brdfs.values():
         if isinstance(b, BlendBRDF):
             tables.update({id(p): p for p in b.parts})
-    preds: dict[str, list[np.ndarray]] = {m: [] for m in brdfs}
-    for env in envs:
+    preds = {m: [None] * len(envs) for m in brdfs}
+    for k, env in enumerate(envs):
         shared = dict(zip(tables, predict_tables(list(tables.values()), env, normals)))
         for m, brdf in brdfs.items():
             if isinstance(brdf, BivariateBRDF):
-                pred = shared[id(brdf)]
+                preds[m][k] = shared[id(brdf)]
             elif isinstance(brdf, BlendBRDF):
-                pred = brdf.combine([shared[id(p)] for p in brdf.parts])
+                preds[m][k] = brdf.combine([shared[id(p)] for p in brdf.parts])
+    for group in group_by_samples(envs):
+        lighting = stack_lightings([envs[k] for k in group]) if len(group) > 1 else None
+        for m, brdf in brdfs.items():
+            if preds[m][group[0]] is not None:
+                continue
+            if lighting is not None and getattr(brdf, "stacks_lightings", False):
+                parts = np.split(np.asarray(brdf.predict(lighting, normals), dtype=np.float64), len(group), axis=1)
             else:
-                pred = np.asarray(brdf.predict(env, normals), dtype=np.float64)
-            preds[m].append(pred)
+                parts = [np.asarray(brdf.predict(envs[k], normals), dtype=np.float64) for k in group]
+            for k, pred in zip(group, parts):
+                preds[m][k] = pred
     return {m: np.stack(p) for m, p in preds.items()}
 
 

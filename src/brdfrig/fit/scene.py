@@ -50,12 +50,16 @@ class Environment:
         ``rotation @`` cell-centre directions), when they came from one; None for
         other sample sets.  Lets renderers integrate sharp lobes over cells
         instead of sampling cell centres (MATH.md pitfall 9).
+    lightings : int
+        How many lightings the channels hold, side by side on the same samples (:func:`stack_lightings`):
+        channel ``k * C + c`` is channel ``c`` of lighting ``k``, ``C = channels / lightings``.
     """
 
     dirs: np.ndarray
     radiance: np.ndarray
     solid_angle: np.ndarray
     latlong: LatLongMap | None = None
+    lightings: int = 1
 
     @property
     def channels(self) -> int:
@@ -65,7 +69,45 @@ class Environment:
         """The same lighting turned by the (3, 3) rotation matrix ``rotation`` (directions ``rotation @ d``)."""
         rot = np.asarray(rotation, dtype=np.float64)
         latlong = None if self.latlong is None else LatLongMap(self.latlong.image, rot @ self.latlong.rotation)
-        return Environment(np.asarray(self.dirs) @ rot.T, self.radiance, self.solid_angle, latlong)
+        return Environment(np.asarray(self.dirs) @ rot.T, self.radiance, self.solid_angle, latlong, self.lightings)
+
+
+def same_samples(a: Environment, b: Environment) -> bool:
+    """Whether ``a`` and ``b`` light the same samples (directions, solid angles, lat-long map shape and rotation)
+    with as many channels per lighting: whether :func:`stack_lightings` can hold both."""
+    if not (np.array_equal(a.dirs, b.dirs) and np.array_equal(a.solid_angle, b.solid_angle)
+            and a.channels // a.lightings == b.channels // b.lightings and (a.latlong is None) == (b.latlong is None)):
+        return False
+    return a.latlong is None or (a.latlong.image.shape[:2] == b.latlong.image.shape[:2]
+                                 and np.array_equal(a.latlong.rotation, b.latlong.rotation))
+
+
+def group_by_samples(envs: list[Environment]) -> list[list[int]]:
+    """Indices of ``envs`` in groups that share their samples (:func:`same_samples`), in order of first appearance."""
+    groups: list[list[int]] = []
+    for i, env in enumerate(envs):
+        for group in groups:
+            if same_samples(envs[group[0]], env):
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    return groups
+
+
+def stack_lightings(envs: list[Environment]) -> Environment:
+    """One environment holding every lighting of ``envs`` side by side in its channels (:attr:`Environment.lightings`).
+
+    A render under it evaluates each BRDF value once for all the lightings; its channels split back into the
+    lightings' renders in order.  ValueError unless the lightings share their samples (:func:`same_samples`).
+    """
+    first = envs[0]
+    if not all(same_samples(first, env) for env in envs[1:]):
+        raise ValueError("only lightings on the same samples stack")
+    latlong = None if first.latlong is None else LatLongMap(
+        np.concatenate([e.latlong.image for e in envs], axis=2), first.latlong.rotation)
+    return Environment(first.dirs, np.concatenate([e.radiance for e in envs], axis=1), first.solid_angle, latlong,
+                       sum(e.lightings for e in envs))
 
 
 @dataclass(frozen=True)
