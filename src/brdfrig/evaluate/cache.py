@@ -43,6 +43,8 @@ class CachedGroundTruth:
         Where the ``gt-<sha256>.npy`` files live (created on first write).
     render : callable or None
         ``(brdf, normals (N, 3), env) -> (N, C)`` radiance; None: :func:`brdfrig.fit.groundtruth.render_groundtruth`.
+        For a BRDF whose ``stacks_lightings`` is true it must also render under stacked lightings
+        (:func:`brdfrig.fit.scene.stack_lightings`, C = every lighting's channels), as the default does.
     sources : iterable of modules or None
         Modules whose source files enter the key (None: ``fit/groundtruth.py`` and ``fit/analytic.py``).
 
@@ -94,7 +96,7 @@ class CachedGroundTruth:
     def renders(self, brdf, normals, envs, identity: bytes | None = None) -> list[np.ndarray]:
         """The render of ``brdf`` at ``normals`` under each of ``envs`` (view +z), each from the cache or rendered and
         stored.  Missing renders under lightings on the same samples are rendered in one call under them stacked
-        (:func:`brdfrig.fit.scene.stack_lightings`), when the BRDF's ``stacks_lightings`` says it renders so."""
+        (:func:`brdfrig.fit.scene.stack_lightings`) when the BRDF's ``stacks_lightings`` is true."""
         from brdfrig.fit.scene import group_by_samples, stack_lightings
 
         paths = [self.directory / f"gt-{self.key(brdf, normals, env, identity=identity)}.npy" for env in envs]
