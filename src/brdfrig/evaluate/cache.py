@@ -97,27 +97,20 @@ class CachedGroundTruth:
         """The render of ``brdf`` at ``normals`` under each of ``envs`` (view +z), each from the cache or rendered and
         stored.  Missing renders under lightings on the same samples are rendered in one call under them stacked
         (:func:`brdfrig.fit.scene.stack_lightings`) when the BRDF's ``stacks_lightings`` is true."""
-        from brdfrig.fit.scene import group_by_samples, stack_lightings
+        from brdfrig.fit.scene import render_per_lighting
 
         paths = [self.directory / f"gt-{self.key(brdf, normals, env, identity=identity)}.npy" for env in envs]
         out = [self._load(path, (len(normals), env.channels)) for path, env in zip(paths, envs)]
         missing = [k for k, image in enumerate(out) if image is None]
         self.hits += len(envs) - len(missing)
         self.misses += len(missing)
-        for group in group_by_samples([envs[k] for k in missing]):
-            group = [missing[k] for k in group]
-            if len(group) > 1 and getattr(brdf, "stacks_lightings", False):
-                image = self._render_one(brdf, normals, stack_lightings([envs[k] for k in group]))
-                images = np.split(image, len(group), axis=1)
-            else:
-                images = [self._render_one(brdf, normals, envs[k]) for k in group]
-            for k, image in zip(group, images):
-                self._store(paths[k], image)
-                out[k] = image
+        render = self._renderer()
+        images = render_per_lighting(lambda env: render(brdf, normals, env), [envs[k] for k in missing],
+                                     bool(getattr(brdf, "stacks_lightings", False)))
+        for k, image in zip(missing, images):
+            self._store(paths[k], image)
+            out[k] = image
         return out
-
-    def _render_one(self, brdf, normals, env) -> np.ndarray:
-        return np.asarray(self._renderer()(brdf, normals, env), dtype=np.float64)
 
     @staticmethod
     def _load(path: Path, shape: tuple[int, int]) -> np.ndarray | None:

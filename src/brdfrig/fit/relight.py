@@ -65,7 +65,7 @@ from brdfrig.fit.metrics import relative_rms
 from brdfrig.fit.registry import PARAMETRIC, PRIOR_OF
 from brdfrig.fit.report import RelightEstimate
 from brdfrig.fit.rotation import axis_rotation
-from brdfrig.fit.scene import Environment, group_by_samples, stack_lightings
+from brdfrig.fit.scene import Environment, render_per_lighting
 from brdfrig.fit.stream import FitData
 
 __all__ = ["OTHER_ROTATIONS", "ESTIMATE_PIXELS", "SPREAD_CALIBRATION", "CALIBRATED_FOR", "LOSO_MAX_FOLDS", "FOLD_SPLITS", "other_lightings", "loso_folds", "estimate_pixels",
@@ -150,17 +150,10 @@ def predict_under(brdfs: dict, envs: list[Environment], normals: np.ndarray) -> 
                 preds[m][k] = shared[id(brdf)]
             elif isinstance(brdf, BlendBRDF):
                 preds[m][k] = brdf.combine([shared[id(p)] for p in brdf.parts])
-    for group in group_by_samples(envs):
-        lighting = stack_lightings([envs[k] for k in group]) if len(group) > 1 else None
-        for m, brdf in brdfs.items():
-            if preds[m][group[0]] is not None:
-                continue
-            if lighting is not None and getattr(brdf, "stacks_lightings", False):
-                parts = np.split(np.asarray(brdf.predict(lighting, normals), dtype=np.float64), len(group), axis=1)
-            else:
-                parts = [np.asarray(brdf.predict(envs[k], normals), dtype=np.float64) for k in group]
-            for k, pred in zip(group, parts):
-                preds[m][k] = pred
+    for m, brdf in brdfs.items():
+        if not isinstance(brdf, (BivariateBRDF, BlendBRDF)):
+            preds[m] = render_per_lighting(lambda env, b=brdf: b.predict(env, normals), envs,
+                                           getattr(brdf, "stacks_lightings", False))
     return {m: np.stack(p) for m, p in preds.items()}
 
 

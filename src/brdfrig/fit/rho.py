@@ -341,8 +341,7 @@ def kernel_rows(brdf, channels: int, lightings: int = 1) -> tuple[np.ndarray, bo
     if params.shape[0] * lightings != channels:
         raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {channels}"
                          + (f" ({lightings} lightings)" if lightings > 1 else ""))
-    params = np.tile(params, (lightings, 1))
-    params = np.ascontiguousarray(params)
+    params = np.tile(params, (lightings, 1))  # a new C-contiguous array
     return params, shares_shape(int(brdf.kind), params)
 
 

@@ -110,6 +110,22 @@ def stack_lightings(envs: list[Environment]) -> Environment:
                        sum(e.lightings for e in envs))
 
 
+def render_per_lighting(render, envs: list[Environment], stack: bool) -> list[np.ndarray]:
+    """``render(env)`` as float64 (N, C) for each of ``envs``, in order; with ``stack``, the lightings on the same
+    samples (:func:`group_by_samples`) in one call under them stacked (:func:`stack_lightings`), its channels split
+    back into theirs."""
+    out: list = [None] * len(envs)
+    for group in group_by_samples(envs):
+        if stack and len(group) > 1:
+            image = np.asarray(render(stack_lightings([envs[k] for k in group])), dtype=np.float64)
+            parts = np.split(image, len(group), axis=1)
+        else:
+            parts = [np.asarray(render(envs[k]), dtype=np.float64) for k in group]
+        for k, part in zip(group, parts):
+            out[k] = part
+    return out
+
+
 @dataclass(frozen=True)
 class Scene:
     """One lighting condition and the sphere pixels observed under it.
