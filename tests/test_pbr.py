@@ -66,6 +66,19 @@ def test_finite_non_negative_reciprocal(name):
     assert np.all(grazing < 0.5), grazing.max()
 
 
+def test_legendre_polynomials_match_numpys():
+    from brdfrig.fit.pbr import FRESNEL_DEGREE, legendre_into
+
+    x = np.linspace(-1, 1, 201)
+    mine = np.empty((x.size, FRESNEL_DEGREE + 1))
+    for k, v in enumerate(x):
+        legendre_into(v, mine[k])
+    np.testing.assert_allclose(mine, np.polynomial.legendre.legvander(x, FRESNEL_DEGREE), rtol=0, atol=1e-14)
+    short = np.empty(1)
+    legendre_into(0.3, short)
+    assert short[0] == 1.0
+
+
 def test_fresnel_expansion_and_coat_albedo_closed_forms():
     from brdfrig.fit.analytic import fresnel_dielectric
 
