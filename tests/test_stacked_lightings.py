@@ -3,7 +3,9 @@
 Oracle: the render under each lighting alone.  Each lighting's channels of the stacked render must equal it to the
 last bit (the BRDF value at a sample is shared by the lightings; each channel's sum is the same sum, in the same
 order).  A measured table's stacked render is also checked against the table looked up in numpy
-(:func:`brdfrig.fit.groundtruth.render_rho`), to 1e-9.  Lightings on other samples (a turned map) must not stack.
+(:func:`brdfrig.fit.groundtruth.render_rho`), to 1e-9.  Lightings on other samples (a map turned by a fraction of a
+cell) must not stack; a map turned by whole cells keeps its samples, and renders as the turned samples do (the
+environment built by hand from the turned directions), to 1e-9.
 """
 
 from __future__ import annotations
@@ -13,12 +15,13 @@ import pytest
 
 from brdfrig.evaluate.cache import CachedGroundTruth
 from brdfrig.fit.analytic import GGX
+from brdfrig.fit.bivariate import BivariateBRDF, predict_tables
 from brdfrig.fit.groundtruth import render_groundtruth, render_rho
 from brdfrig.fit.microfacet import MicrofacetBRDF
 from brdfrig.fit.pbr import ConductorBRDF, DielectricBRDF, SheenBRDF
-from brdfrig.fit.relight import predict_under
+from brdfrig.fit.relight import other_lightings, predict_under
 from brdfrig.fit.rotation import axis_rotation
-from brdfrig.fit.scene import group_by_samples, same_samples, stack_lightings
+from brdfrig.fit.scene import Environment, LatLongMap, group_by_samples, same_samples, stack_lightings
 from brdfrig.hdr.sphere import sphere_pixels
 from brdfrig.lighting import environment_from_latlong
 
@@ -129,3 +132,72 @@ def test_cache_renders_missing_lightings_stacked(tmp_path):
     np.testing.assert_array_equal(cache(brdf, normals, envs[2]), images[2])  # each lighting is its own entry
     cache.renders(brdf, normals, envs)
     assert len(calls) == 2 and (cache.misses, cache.hits) == (3, 4)
+
+
+def _tables():
+    """Two seeded tables on different grids."""
+    rng = np.random.default_rng(7)
+    return [BivariateBRDF(rng.uniform(0, 1, (3, 6, 4)), rng.uniform(0, 1, (3, 6, 4))),
+            BivariateBRDF(rng.uniform(0, 1, (3, 9, 5)), rng.uniform(0, 1, (3, 9, 5)))]
+
+
+def _turned_samples(env, rotation):
+    """``env`` turned by moving its samples (and its map's frame): the oracle of a turn by whole cells."""
+    return Environment(env.dirs @ rotation.T, env.radiance, env.solid_angle,
+                       LatLongMap(env.latlong.image, rotation @ env.latlong.rotation))
+
+
+@pytest.mark.parametrize("axis, degrees", [("y", 45.0), ("y", 90.0), ("y", -180.0), ("x", 180.0), ("z", 180.0)])
+def test_a_turn_by_whole_cells_keeps_the_samples(axis, degrees):
+    env, normals, rotation = _lighting(1), _normals(16), axis_rotation(axis, degrees)  # 32 columns: 45 degrees is 4
+    turned = env.rotated(rotation)
+    assert same_samples(env, turned) and not np.array_equal(turned.radiance, env.radiance)
+    bright = np.argmax(env.radiance[:, 0])  # the bright cell's light now arrives from its turned direction
+    np.testing.assert_allclose(turned.dirs[np.argmax(turned.radiance[:, 0])], rotation @ env.dirs[bright], atol=1e-12)
+    oracle = _turned_samples(env, rotation)
+    for brdf in (_brdfs()["dielectric"], _tables()[0]):
+        np.testing.assert_allclose(brdf.predict(turned, normals), brdf.predict(oracle, normals), rtol=1e-9, atol=0)
+
+
+@pytest.mark.parametrize("axis, degrees", [("y", 40.0), ("y", 360 / 64), ("x", 90.0), ("z", 90.0)])
+def test_other_turns_move_the_samples(axis, degrees):
+    env, rotation = _lighting(1), axis_rotation(axis, degrees)
+    turned = env.rotated(rotation)
+    assert not same_samples(env, turned)
+    np.testing.assert_array_equal(turned.dirs, env.dirs @ rotation.T)
+
+
+def test_the_estimates_turns_about_the_vertical_share_samples():
+    assert group_by_samples(other_lightings(_lighting(1))) == [[0, 1, 2], [3], [4]]
+
+
+def test_tables_render_stacked_lightings_in_one_pass():
+    tables, normals = _tables(), _normals(14)
+    envs = [_lighting(1), _lighting(2), _lighting(3)]
+    alone = [predict_tables(tables, env, normals) for env in envs]
+    for sight in range(3):  # a pass (the same sums: to the last bit), then the design built and kept (to rounding)
+        stacked = predict_tables(tables, stack_lightings(envs), normals)
+        for t in range(len(tables)):
+            assert stacked[t].shape == (len(normals), 9)
+            for k in range(len(envs)):
+                np.testing.assert_allclose(stacked[t][:, 3 * k:3 * k + 3], alone[k][t], rtol=1e-12 if sight else 0, atol=0)
+    with pytest.raises(ValueError, match="3 channels but the environment has 6"):
+        predict_tables(tables, Environment(envs[0].dirs, np.hstack([envs[0].radiance] * 2), envs[0].solid_angle), normals)
+
+
+def test_predict_under_renders_tables_stacked(monkeypatch):
+    from brdfrig.fit import bivariate
+    from brdfrig.fit.memo import RenderMemo
+
+    tables, normals = _tables(), _normals(12)
+    envs = [_lighting(2), _lighting(2).rotated(axis_rotation("x", 90.0)), _lighting(4)]
+    channels: list[int] = []  # of each pass over the quadrature
+    kernel = bivariate._render_kernel
+    monkeypatch.setattr(bivariate, "_DESIGNS", RenderMemo(bivariate.DESIGN_CACHE_BYTES, second_sight=True))
+    monkeypatch.setattr(bivariate, "_render_kernel", lambda n, q, *rest: channels.append(q.wrad.shape[1]) or kernel(n, q, *rest))
+    preds = predict_under({"a": tables[0], "b": tables[1]}, envs, normals)
+    assert channels == [6, 3]
+    for k, env in enumerate(envs):  # the turned lighting's second sight is predicted from its design: to rounding
+        alone = predict_tables(tables, env, normals)
+        np.testing.assert_allclose(preds["a"][k], alone[0], rtol=1e-12, atol=0)
+        np.testing.assert_allclose(preds["b"][k], alone[1], rtol=1e-12, atol=0)

@@ -238,11 +238,13 @@ def _design_kernel(normals: np.ndarray, q: LobeQuadrature, nh: int, nd: int) -> 
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _render_kernel(normals: np.ndarray, q: LobeQuadrature, values: np.ndarray, grids: np.ndarray) -> np.ndarray:
-    """Radiance (M, N, C) of M tables packed in ``values``: table ``m`` is ``values[o:o + 2 C nh nd]`` laid out as
-    (2, C, nh, nd) (in-plane, cross) with ``(o, nh, nd) = grids[m]`` (grids may differ).  Same quadrature as
-    :func:`_design_kernel`: the samples and their angles are computed once for all tables.  One flat array, not
-    a list of arrays: per light sample, a list item or an array view costs more than the lookup itself."""
+def _render_kernel(normals: np.ndarray, q: LobeQuadrature, values: np.ndarray, grids: np.ndarray, tc: int) -> np.ndarray:
+    """Radiance (M, N, C) of M tables of ``tc`` channels packed in ``values``: table ``m`` is
+    ``values[o:o + 2 tc nh nd]`` laid out as (2, tc, nh, nd) (in-plane, cross) with ``(o, nh, nd) = grids[m]``
+    (grids may differ); channel ``c`` of the lighting reads table channel ``c mod tc`` (stacked lightings).  Same
+    quadrature as :func:`_design_kernel`: the samples and their angles are computed once for all tables.  One
+    flat array, not a list of arrays: per light sample, a list item or an array view costs more than the lookup
+    itself."""
     n_pix, n_tab = normals.shape[0], grids.shape[0]
     nc = q.wrad.shape[1]
     out = np.zeros((n_tab, n_pix, nc))
@@ -262,9 +264,9 @@ def _render_kernel(normals: np.ndarray, q: LobeQuadrature, values: np.ndarray, g
                 w01 = (1.0 - fu) * ft
                 w10 = fu * (1.0 - ft)
                 w11 = fu * ft
-                plane = nc * nh * nd
+                plane = tc * nh * nd
                 for c in range(nc):
-                    p = o + (c * nh + a) * nd + b
+                    p = o + ((c % tc) * nh + a) * nd + b
                     x = p + plane
                     rho_p = w00 * values[p] + w01 * values[p + 1] + w10 * values[p + nd] + w11 * values[p + nd + 1]
                     rho_q = w00 * values[x] + w01 * values[x + 1] + w10 * values[x + nd] + w11 * values[x + nd + 1]
@@ -392,7 +394,9 @@ class BivariateBRDF:
 
 def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
     """Radiance (N, C) of each :class:`BivariateBRDF` in ``brdfs`` at unit ``normals`` under ``env``, seen from
-    ``v = (0, 0, 1)``, by the quadrature's defaults.
+    ``v = (0, 0, 1)``, by the quadrature's defaults.  Under stacked lightings (:func:`~brdfrig.fit.scene.stack_lightings`)
+    channel ``c`` is table channel ``c mod C``: one pass for all of them, each lighting's channels the same to the
+    last bit as its own render.
 
     One pass over the quadrature samples serves every table (their grids may differ): the samples and their
     angles and one table cost about 1 ms per pixel on a 128 x 64 map, each further table about a fifth of that.
@@ -403,10 +407,12 @@ def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
     """
     brdfs = list(brdfs)
     for b in brdfs:
-        if env.channels != b.channels:
-            raise ValueError(f"BRDF has {b.channels} channels but the environment has {env.channels}")
+        if env.channels != b.channels * env.lightings:
+            raise ValueError(f"BRDF has {b.channels} channels but the environment has {env.channels}"
+                             + (f" ({env.lightings} lightings)" if env.lightings > 1 else ""))
     if not brdfs:
         return []
+    tc = brdfs[0].channels
     normals = _normals(normals)
     q = lobe_quadrature(env)
     where = content_digest(normals, env)
@@ -418,16 +424,15 @@ def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
         if design is None:
             passes += idx
             continue
-        nc = env.channels
-        nodes = np.stack([brdfs[i].tables.reshape(2, nc, -1).transpose(0, 2, 1).reshape(-1, nc) for i in idx])
-        rad = np.stack([design[:, :, c] @ nodes[:, :, c].T for c in range(nc)], axis=2)
+        nodes = np.stack([brdfs[i].tables.reshape(2, tc, -1).transpose(0, 2, 1).reshape(-1, tc) for i in idx])
+        rad = np.stack([design[:, :, c] @ nodes[:, :, c % tc].T for c in range(env.channels)], axis=2)
         for i, r in zip(idx, rad.transpose(1, 0, 2)):
             out[i] = r
     if passes:
         values = np.concatenate([brdfs[i].tables.ravel() for i in passes])
         sizes = np.array([brdfs[i].tables.size for i in passes])
         grids = np.array([(o, *brdfs[i].tables.shape[2:]) for o, i in zip(np.cumsum(sizes) - sizes, passes)], dtype=np.int64)
-        for i, r in zip(passes, _render_kernel(normals, q, values, grids)):
+        for i, r in zip(passes, _render_kernel(normals, q, values, grids, tc)):
             out[i] = r
     return out
 

@@ -133,23 +133,26 @@ def predict_under(brdfs: dict, envs: list[Environment], normals: np.ndarray) -> 
     """name -> (len(envs), N, C) radiance of each BRDF in ``brdfs`` at ``normals`` under each lighting.
 
     The tabulated ones (:class:`~brdfrig.fit.bivariate.BivariateBRDF`, and the parts of each
-    :class:`~brdfrig.fit.blend.BlendBRDF`) share one pass over the quadrature per lighting
-    (:func:`~brdfrig.fit.bivariate.predict_tables`).  A BRDF whose ``stacks_lightings`` is true renders
-    once under all the lightings (:func:`~brdfrig.fit.scene.stack_lightings`) when they share their samples;
-    the others use their own ``predict`` per lighting.
+    :class:`~brdfrig.fit.blend.BlendBRDF`) share one pass over the quadrature
+    (:func:`~brdfrig.fit.bivariate.predict_tables`) per group of lightings on the same samples, stacked
+    (:func:`~brdfrig.fit.scene.stack_lightings`).  A BRDF whose ``stacks_lightings`` is true renders once
+    under each such group as well; the others use their own ``predict`` per lighting.
     """
     tables = {id(b): b for b in brdfs.values() if isinstance(b, BivariateBRDF)}
     for b in brdfs.values():
         if isinstance(b, BlendBRDF):
             tables.update({id(p): p for p in b.parts})
     preds = {m: [None] * len(envs) for m in brdfs}
-    for k, env in enumerate(envs):
-        shared = dict(zip(tables, predict_tables(list(tables.values()), env, normals)))
-        for m, brdf in brdfs.items():
-            if isinstance(brdf, BivariateBRDF):
-                preds[m][k] = shared[id(brdf)]
-            elif isinstance(brdf, BlendBRDF):
-                preds[m][k] = brdf.combine([shared[id(p)] for p in brdf.parts])
+    if tables:
+        per_lighting = render_per_lighting(lambda env: np.stack(predict_tables(list(tables.values()), env, normals), axis=2),
+                                           envs, True)
+        for k, rendered in enumerate(per_lighting):
+            shared = dict(zip(tables, np.moveaxis(rendered, 2, 0)))
+            for m, brdf in brdfs.items():
+                if isinstance(brdf, BivariateBRDF):
+                    preds[m][k] = shared[id(brdf)]
+                elif isinstance(brdf, BlendBRDF):
+                    preds[m][k] = brdf.combine([shared[id(p)] for p in brdf.parts])
     for m, brdf in brdfs.items():
         if not isinstance(brdf, (BivariateBRDF, BlendBRDF)):
             preds[m] = render_per_lighting(lambda env, b=brdf: b.predict(env, normals), envs,

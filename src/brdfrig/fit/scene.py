@@ -66,10 +66,49 @@ class Environment:
         return self.radiance.shape[1]
 
     def rotated(self, rotation: np.ndarray) -> "Environment":
-        """The same lighting turned by the (3, 3) rotation matrix ``rotation`` (directions ``rotation @ d``)."""
+        """The same lighting turned by the (3, 3) rotation matrix ``rotation`` (directions ``rotation @ d``).
+
+        When the turn carries every cell of the lat-long map onto another (about the map's pole by a whole
+        number of columns, for one), the result keeps this environment's samples and permutes their radiance
+        (:func:`cell_permutation`), so it stacks with it (:func:`stack_lightings`); otherwise its samples turn.
+        """
         rot = np.asarray(rotation, dtype=np.float64)
+        perm = cell_permutation(self, rot)
+        if perm is not None:
+            h, w, c = self.latlong.image.shape
+            image = self.latlong.image.reshape(h * w, c)[perm].reshape(h, w, c)
+            return Environment(self.dirs, np.asarray(self.radiance)[perm], np.asarray(self.solid_angle)[perm],
+                               LatLongMap(image, self.latlong.rotation), self.lightings)
         latlong = None if self.latlong is None else LatLongMap(self.latlong.image, rot @ self.latlong.rotation)
         return Environment(np.asarray(self.dirs) @ rot.T, self.radiance, self.solid_angle, latlong, self.lightings)
+
+
+CELL_MATCH = 1e-12
+"""A turned cell centre lands on a cell centre when their directions' dot product is above ``1 - CELL_MATCH``
+(1.4e-6 radians)."""
+
+
+def cell_permutation(env: Environment, rotation: np.ndarray) -> np.ndarray | None:
+    """Sample index ``p`` with ``env.dirs[p[i]] = rotation.T @ env.dirs[i]`` (to :data:`CELL_MATCH`): the cell
+    whose light the turned lighting sends from sample ``i``.  None unless ``env`` keeps a lat-long map and
+    ``rotation`` carries every cell centre onto one.
+
+    The candidate cell of a direction follows the lat-long convention (MATH.md: row 0 at +y, column centres at
+    longitude ``-2 pi ((col + 0.5) / W - 0.5)`` from +z toward +x); every match is then checked on the
+    directions themselves.
+    """
+    if env.latlong is None:
+        return None
+    h, w = env.latlong.image.shape[:2]
+    dirs = np.asarray(env.dirs, dtype=np.float64)
+    source = dirs @ np.asarray(rotation, dtype=np.float64)
+    in_map = source @ np.asarray(env.latlong.rotation, dtype=np.float64)
+    row = np.floor((0.5 - np.arcsin(np.clip(in_map[:, 1], -1.0, 1.0)) / np.pi) * h).astype(np.int64)
+    col = np.floor((0.5 - np.arctan2(in_map[:, 0], in_map[:, 2]) / (2 * np.pi)) * w).astype(np.int64) % w
+    perm = np.clip(row, 0, h - 1) * w + col
+    if np.all(np.einsum("ij,ij->i", dirs[perm], source) > 1.0 - CELL_MATCH) and np.unique(perm).size == perm.size:
+        return perm
+    return None
 
 
 def same_samples(a: Environment, b: Environment) -> bool:
@@ -111,9 +150,9 @@ def stack_lightings(envs: list[Environment]) -> Environment:
 
 
 def render_per_lighting(render, envs: list[Environment], stack: bool) -> list[np.ndarray]:
-    """``render(env)`` as float64 (N, C) for each of ``envs``, in order; with ``stack``, the lightings on the same
-    samples (:func:`group_by_samples`) in one call under them stacked (:func:`stack_lightings`), its channels split
-    back into theirs."""
+    """``render(env)`` as float64 (N, C, ...) for each of ``envs``, in order; with ``stack``, the lightings on the
+    same samples (:func:`group_by_samples`) in one call under them stacked (:func:`stack_lightings`), its channels
+    (axis 1) split back into theirs."""
     out: list = [None] * len(envs)
     for group in group_by_samples(envs):
         if stack and len(group) > 1:
