@@ -106,17 +106,23 @@ def test_tilted_scenes_light_from_other_elevations(probes, tmp_path):
 
 
 def test_a_turned_relight_probe_is_the_probe_rotated(probes, tmp_path):
-    """``grace@y180`` is grace turned 180 degrees about +y (scipy's rotation, to 1e-12) with the same radiance, and
-    its truth is the ground truth under that rotation; a malformed turn is refused naming the probe and the form."""
+    """``grace@y180`` is grace turned 180 degrees about +y (scipy's rotation, to 1e-12): the light of each direction
+    ``d`` arrives from ``R d`` (a permutation of the cells here, turned samples for a tilt), and its truth is the
+    ground truth under that rotation; a malformed turn is refused naming the probe and the form."""
     from scipy.spatial.transform import Rotation
 
     from brdfrig.errors import InputError
     from brdfrig.evaluate.probes import probe_environment
 
-    plain, turned = probe_environment("grace", 8, probes), probe_environment("grace@y180", 8, probes)
+    plain = probe_environment("grace", 8, probes)
+    for degrees in (90.0, 180.0):
+        turned = probe_environment(f"grace@y{degrees:g}", 8, probes)
+        turn = Rotation.from_euler("y", degrees, degrees=True).as_matrix()
+        match = np.argmax(turned.dirs @ (plain.dirs @ turn.T).T, axis=1)  # the plain sample whose light each turned one has
+        np.testing.assert_allclose(turned.dirs, plain.dirs[match] @ turn.T, atol=1e-12)
+        np.testing.assert_array_equal(turned.radiance, plain.radiance[match])
+        assert np.array_equal(np.sort(match), np.arange(len(match)))
     rot = Rotation.from_euler("y", 180.0, degrees=True).as_matrix()
-    np.testing.assert_allclose(turned.dirs, plain.dirs @ rot.T, atol=1e-12)
-    np.testing.assert_array_equal(turned.radiance, plain.radiance)
     tilted = probe_environment("grace@x-45.5", 8, probes)
     np.testing.assert_allclose(tilted.dirs, plain.dirs @ Rotation.from_euler("x", -45.5, degrees=True).as_matrix().T,
                                atol=1e-12)
