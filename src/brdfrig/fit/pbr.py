@@ -131,9 +131,8 @@ def fresnel_coefficients(ior: float) -> np.ndarray:
 
 
 _RECURSION = np.array([[(2 * j - 1) / max(j, 1), (j - 1) / max(j, 1)] for j in range(FRESNEL_DEGREE + 1)])
-"""Bonnet's recursion ``P_j = a_j x P_{j-1} - b_j P_{j-2}``: rows ``(a_j, b_j) = ((2j - 1) / j, (j - 1) / j)``.
-Multiplying by these, not dividing by ``j`` per step, with the last two kept in registers, halves the time of
-the fit's lobe-moment renders."""
+"""Bonnet's recursion ``P_j = a_j x P_{j-1} - b_j P_{j-2}``: rows ``(a_j, b_j) = ((2j - 1) / j, (j - 1) / j)``,
+precomputed so that a step multiplies instead of dividing (the lobe-moment kernels run it at every light sample)."""
 
 
 @numba.njit(cache=True, fastmath=False)
