@@ -55,7 +55,8 @@ def test_dng_bracket_merges_to_the_known_radiance_within_noise(bench, tmp_path):
 
 def test_camera_sees_the_physical_angle_not_the_drivers_belief(tmp_path):
     bench = SimBench(scale=0.25, env_height=8)
-    with GrblSimulator(steps_per_degree=80, backlash_deg=0.5, max_rate_deg_s=1e5, homing_time_s=0.001) as sim:
+    # the virtual clock (tick_s): homing and motion advance per status report, never with the machine's load
+    with GrblSimulator(steps_per_degree=80, backlash_deg=0.5, max_rate_deg_s=1e5, homing_time_s=0.002, tick_s=0.001) as sim:
         # a driver told there is no backlash: coming down, it believes 20.0 while the table rests at 20.5
         with GrblTurntable(sim.port, 115200, 80, 0.0, poll_interval_s=0.001) as table:
             table.home()
