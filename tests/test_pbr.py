@@ -207,7 +207,8 @@ def test_bad_values_raise():
 def test_sharp_lobe_quadrature_converges():
     # MATH.md pitfall 9: a lobe narrower than a cell. predict's rule (lobe_rule) against a finer subdivision.
     from brdfrig.fit.groundtruth import render_groundtruth
-    from brdfrig.fit.pbr import lobe_rule, render_sharp
+    from brdfrig.fit.groundtruth import render_sharp
+    from brdfrig.fit.pbr import lobe_rule
 
     env, _, normals = _case(rows=32, size=16)
     sharp = DielectricBRDF([0.3, 0.2, 0.1], 0.0, 1.0, 0.12, 1.5)  # alpha 0.0144, cells 0.098 rad

@@ -127,3 +127,78 @@ def test_bad_parameters():
     for cone, s, msg in [(-1.0, 4, "cone_deg"), (200.0, 4, "cone_deg"), (20.0, 0, "subdiv"), (20.0, 2.5, "subdiv"), ((5.0, 10.0), 4, "one length")]:
         with pytest.raises(ValueError, match=msg):
             lobe_quadrature(env, cone, s)
+
+
+def _merged_and_cells(image, rot, tiers=(0.0, 1), merge=30.0):
+    env = environment_from_latlong(image, rot)
+    return env, lobe_quadrature(env, *tiers, merge_deg=merge), lobe_quadrature(env, *tiers)
+
+
+@pytest.mark.parametrize("tiers", [(0.0, 1), ((5.0, 20.0), (12, 4))])
+@pytest.mark.parametrize("normal", NORMALS)
+def test_merged_blocks_keep_every_channels_cosine_weighted_power(normal, tiers):
+    """Sum of wrad (n.w) over the samples: the same with 2 x 2 blocks merged as over the cells, per channel."""
+    image = np.random.default_rng(4).uniform(0.0, 2.0, (32, 64, 3)) ** 3  # strong contrast within blocks
+    rot = Rotation.from_euler("xy", (25, 40), degrees=True).as_matrix()
+    env, merged, cells = _merged_and_cells(image, rot, tiers)
+    d1, w1 = quadrature_samples(merged, normal)
+    d0, w0 = quadrature_samples(cells, normal)
+    np.testing.assert_allclose(w1.T @ (d1 @ normal), w0.T @ (d0 @ normal), rtol=1e-12)
+    assert np.all(d1 @ normal > 0) and len(d1) < 0.85 * len(d0)
+    np.testing.assert_allclose(np.linalg.norm(d1, axis=1), 1.0, rtol=1e-14)
+
+
+@pytest.mark.parametrize("normal", NORMALS)
+def test_merged_blocks_leave_the_samples_within_the_cone_alone(normal):
+    image = np.random.default_rng(5).uniform(0.0, 1.0, (32, 64, 2))
+    rot = Rotation.from_euler("z", 70, degrees=True).as_matrix()
+    _, merged, cells = _merged_and_cells(image, rot, (10.0, 6), merge=25.0)
+    r = _mirror(normal)
+    inside = []
+    for q in (merged, cells):
+        d, w = quadrature_samples(q, normal)
+        near = d @ r >= math.cos(math.radians(25.0))
+        order = np.lexsort(d[near].T)
+        inside.append((d[near][order], w[near][order]))
+    np.testing.assert_array_equal(inside[0][0], inside[1][0])
+    np.testing.assert_array_equal(inside[0][1], inside[1][1])
+    d, _ = quadrature_samples(merged, normal, horizon=False)  # blocks merge only above the horizon
+    np.testing.assert_array_equal(d, quadrature_samples(cells, normal, horizon=False)[0])
+
+
+def test_merged_render_of_a_lambertian_is_the_cell_centre_render_and_of_a_rough_lobe_within_a_tenth_percent():
+    """Against :func:`render_groundtruth` (its own kernel, every cell centre): exact where the BRDF is constant over
+    a block; the rough conductor changes across a block (MERGE_CONE_DEG's study: 0.09% at roughness 0.5)."""
+    from brdfrig.fit.analytic import Lambertian
+    from brdfrig.fit.groundtruth import render_groundtruth, render_sharp
+    from brdfrig.fit.pbr import ConductorBRDF
+
+    rng = np.random.default_rng(6)
+    image = rng.uniform(0.0, 1.0, (64, 128, 3)) ** 4  # blocks of 5.6 degrees, as on the benchmark's maps
+    image[8:14, 20:28] += 40.0  # a window: most of the light from a few blocks
+    env = environment_from_latlong(image, Rotation.from_euler("x", 20, degrees=True).as_matrix())
+    normals = np.array([_unit(v) for v in rng.normal(size=(300, 3)) * [1, 1, 0.1] + [0, 0, 0.3]])
+    lamb = Lambertian(albedo=[0.2, 0.5, 0.8])
+    np.testing.assert_allclose(render_sharp(lamb, normals, env, 0.0, 1, 30.0), render_groundtruth(lamb, normals, env), rtol=1e-12)
+    metal = ConductorBRDF(base_color=[0.9, 0.6, 0.3], specular_roughness=0.7)
+    got, ref = render_sharp(metal, normals, env, 0.0, 1, 30.0), render_groundtruth(metal, normals, env)
+    err = np.sqrt(np.sum((got - ref) ** 2) / np.sum(ref**2))
+    assert 1e-6 < err < 1e-3
+
+
+def test_merging_needs_an_even_lat_long_map_and_a_cone_over_the_subdivided_ones():
+    from brdfrig.fit.quadrature import MERGE_CONE_DEG, MERGE_MIN_ROWS, merge_cone
+
+    env = environment_from_latlong(np.ones((8, 16)))
+    assert merge_cone(environment_from_latlong(np.ones((MERGE_MIN_ROWS, 2 * MERGE_MIN_ROWS)))) == MERGE_CONE_DEG
+    assert merge_cone(env) is None  # blocks wider than studied
+    for bad, msg in [(environment_from_latlong(np.ones((9, 18))), "even height and width"),
+                     (environment_from_latlong(np.ones((MERGE_MIN_ROWS + 1, 2 * MERGE_MIN_ROWS + 2))), "even height"),
+                     (Environment(env.dirs, env.radiance, env.solid_angle), "lat-long map")]:
+        with pytest.raises(ValueError, match=msg):
+            lobe_quadrature(bad, merge_deg=30.0)
+        assert merge_cone(bad) is None
+    with pytest.raises(ValueError, match=r"merge_deg \(10.0\) must be at least the widest subdivided cone \(15"):
+        lobe_quadrature(env, merge_deg=10.0)
+    with pytest.raises(ValueError, match="merge_deg must be within"):
+        lobe_quadrature(env, merge_deg=-1.0)

@@ -407,9 +407,7 @@ def predict_tables(brdfs, env: Environment, normals) -> list[np.ndarray]:
     """
     brdfs = list(brdfs)
     for b in brdfs:
-        if env.channels != b.channels * env.lightings:
-            raise ValueError(f"BRDF has {b.channels} channels but the environment has {env.channels}"
-                             + (f" ({env.lightings} lightings)" if env.lightings > 1 else ""))
+        env.check_channels(b.channels)
     if not brdfs:
         return []
     tc = brdfs[0].channels

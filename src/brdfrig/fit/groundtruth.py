@@ -38,7 +38,7 @@ from brdfrig.fit.merl import half_diff, table_lookup
 from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
 
-__all__ = ["render_groundtruth", "render_kernel", "render_ggx_basis", "render_fuzz", "render_tabulated", "render_rho"]
+__all__ = ["render_groundtruth", "render_kernel", "render_sharp", "render_ggx_basis", "render_fuzz", "render_tabulated", "render_rho"]
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
@@ -219,8 +219,45 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
     (N, C) float64 linear radiance, 0 where ``normal . view <= 0``.
     """
     normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
-    params, shared = kernel_rows(brdf, weighted.shape[1], env.lightings)
+    params, shared = kernel_rows(brdf, env)
     return render_kernel(int(brdf.kind), params, normals, dirs, weighted, view, shared)
+
+
+@numba.njit(cache=True, fastmath=False, parallel=True)
+def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray, shared: bool) -> np.ndarray:
+    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of an analytic kind, view +z
+    (``shared``: :func:`brdfrig.fit.rho.shares_shape`)."""
+    n_pix = normals.shape[0]
+    nc = params.shape[0]
+    out = np.zeros((n_pix, nc))
+    for i in numba.prange(n_pix):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        if nz <= 0.0:
+            continue
+        dirs, wrad = lobe_samples(q, nx, ny, nz, True)
+        acc = np.zeros(nc)
+        val = np.empty(nc)
+        view_terms = rho_view(kind, params, shared, nz)
+        for k in range(dirs.shape[0]):
+            cos_i = nx * dirs[k, 0] + ny * dirs[k, 1] + nz * dirs[k, 2]
+            rho_channels(kind, params, shared, cos_i, nz, dirs[k, 2], view_terms, val)
+            for c in range(nc):
+                acc[c] += wrad[k, c] * val[c] * cos_i
+        out[i] = acc
+    return out
+
+
+def render_sharp(brdf, normals: np.ndarray, env: Environment, cone_deg: float, subdiv: int,
+                 merge_deg: float | None = None) -> np.ndarray:
+    """Radiance (N, C) toward ``v = (0, 0, 1)`` of an analytic BRDF (``kind``, ``kernel_params``), sharp-lobe quadrature.
+
+    :func:`render_groundtruth`'s rule with the cells within ``cone_deg`` of each mirror direction split
+    ``subdiv x subdiv``, and, with ``merge_deg``, the 2 x 2 blocks of cells beyond it merged
+    (:func:`brdfrig.fit.quadrature.lobe_quadrature`).
+    """
+    params, shared = kernel_rows(brdf, env)
+    normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
+    return _sharp_kernel(int(brdf.kind), params, lobe_quadrature(env, cone_deg, subdiv, merge_deg), normals, shared)
 
 
 # ----------------------------------------------------------------------------- measured BRDFs
@@ -257,9 +294,7 @@ def _lobe_inputs(normals, env: Environment, channels: int, cone_deg, subdiv):
     """Contiguous normals and the prepared :class:`~brdfrig.fit.quadrature.LobeQuadrature`; checks channels
     (``channels`` per lighting of ``env``, :attr:`~brdfrig.fit.scene.Environment.lightings`)."""
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-    if env.channels != channels * env.lightings:
-        raise ValueError(f"BRDF has {channels} channels but the environment has {env.channels}"
-                         + (f" ({env.lightings} lightings)" if env.lightings > 1 else ""))
+    env.check_channels(channels)
     cone = DEFAULT_CONE_DEG if cone_deg is None else cone_deg
     s = DEFAULT_SUBDIV if subdiv is None else subdiv
     return normals, lobe_quadrature(env, cone, s)

@@ -68,8 +68,8 @@ from brdfrig.fit.analytic import (
     smith_lambda,
 )
 from brdfrig.fit.brdf import register_model
-from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
-from brdfrig.fit.rho import kernel_rows, rho_channels, rho_view
+from brdfrig.fit.groundtruth import render_sharp
+from brdfrig.fit.quadrature import merge_cone
 
 __all__ = [
     "COS_NODES",
@@ -82,7 +82,6 @@ __all__ = [
     "sheen_albedo",
     "layered_rows",
     "lobe_rule",
-    "render_sharp",
     "DielectricBRDF",
     "SheenBRDF",
     "ConductorBRDF",
@@ -309,49 +308,11 @@ def lobe_rule(alpha: float, env, width: float = 0.5) -> tuple[float, int] | None
     return cone, s
 
 
-@numba.njit(cache=True, fastmath=False, parallel=True)
-def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray, shared: bool) -> np.ndarray:
-    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of an analytic kind, view +z
-    (``shared``: :func:`brdfrig.fit.rho.shares_shape`)."""
-    n_pix = normals.shape[0]
-    nc = params.shape[0]
-    out = np.zeros((n_pix, nc))
-    for i in numba.prange(n_pix):
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        if nz <= 0.0:
-            continue
-        dirs, wrad = lobe_samples(q, nx, ny, nz, True)
-        acc = np.zeros(nc)
-        val = np.empty(nc)
-        view_terms = rho_view(kind, params, shared, nz)
-        for k in range(dirs.shape[0]):
-            cos_i = nx * dirs[k, 0] + ny * dirs[k, 1] + nz * dirs[k, 2]
-            rho_channels(kind, params, shared, cos_i, nz, dirs[k, 2], view_terms, val)
-            for c in range(nc):
-                acc[c] += wrad[k, c] * val[c] * cos_i
-        out[i] = acc
-    return out
-
-
-def render_sharp(brdf, normals: np.ndarray, env, cone_deg: float, subdiv: int) -> np.ndarray:
-    """Radiance (N, C) toward ``v = (0, 0, 1)`` of an analytic BRDF (``kind``, ``kernel_params``), sharp-lobe quadrature.
-
-    The ground truth's rule (:func:`brdfrig.fit.groundtruth.render_groundtruth`) with the cells within
-    ``cone_deg`` of each mirror direction split ``subdiv x subdiv`` (:mod:`brdfrig.fit.quadrature`).
-    """
-    params, shared = kernel_rows(brdf, env.channels, env.lightings)
-    normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-    return _sharp_kernel(int(brdf.kind), params, lobe_quadrature(env, cone_deg, subdiv), normals, shared)
-
-
 def _render(brdf, alpha: float, env, normals) -> np.ndarray:
-    """Ground-truth quadrature of ``brdf`` whose sharpest lobe has ``alpha``: cell centres or the sharp-lobe rule."""
-    from brdfrig.fit.groundtruth import render_groundtruth
-
-    rule = lobe_rule(alpha, env)
-    if rule is None:
-        return render_groundtruth(brdf, normals, env)
-    return render_sharp(brdf, normals, env, *rule)
+    """Quadrature of ``brdf`` whose sharpest lobe has ``alpha``: :func:`lobe_rule` within the lobe, cells merged in
+    2 x 2 blocks beyond :data:`brdfrig.fit.quadrature.MERGE_CONE_DEG` of the mirror direction where the map allows."""
+    cone, subdiv = lobe_rule(alpha, env) or (0.0, 1)
+    return render_sharp(brdf, normals, env, cone, subdiv, merge_cone(env))
 
 
 def _scalar(name: str, value, lower: float, upper: float) -> float:

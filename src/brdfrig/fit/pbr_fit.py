@@ -36,7 +36,9 @@ that are rendered once and recombined for free:
   F82, whose degree is 5 and 7; 2e-5 absolute for the dielectric Fresnel at IOR 1.3-2), so one
   pass per ``alpha`` renders the moments and every IOR or conductor colour is a matrix product.
   Lobes narrower than a cell use the sharp-lobe quadrature (:mod:`brdfrig.fit.quadrature`,
-  :func:`brdfrig.fit.pbr.lobe_rule` with :data:`FIT_SUBCELL_WIDTH`; MATH.md pitfall 9).
+  :func:`brdfrig.fit.pbr.lobe_rule` with :data:`FIT_SUBCELL_WIDTH`; MATH.md pitfall 9), and the cells
+  beyond :data:`brdfrig.fit.quadrature.MERGE_CONE_DEG` of the mirror direction merge in 2 x 2 blocks, as
+  in ``predict``.
   The renders (moments, hats, fuzz columns) are kept by the content of the pixels and the lighting in
   :data:`brdfrig.fit.memo.RENDERS`, so the dielectric and conductor searches of one ``auto`` fit share their
   ``alpha`` grid's passes, and fits of other images on the same pixels and lighting reuse them.
@@ -64,7 +66,7 @@ from brdfrig.fit.analytic import (
 from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
 from brdfrig.fit.memo import RENDERS
-from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples
+from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples, merge_cone
 from brdfrig.fit.rho import ggx_lobe_given, smith_lambda
 from brdfrig.fit.microfacet import _check_scenes, _oren_nayar, _subsample, coarsen_environment
 from brdfrig.fit.pbr import (
@@ -211,7 +213,7 @@ class _Data:
         rule = lobe_rule(alpha, env, FIT_SUBCELL_WIDTH)
         key = (id(env), rule)
         if key not in self._quadratures:
-            self._quadratures[key] = lobe_quadrature(env, *(rule or (0.0, 1)))
+            self._quadratures[key] = lobe_quadrature(env, *(rule or (0.0, 1)), merge_cone(env))
         return self._quadratures[key]
 
     def fuzz(self, fuzz_alpha: float) -> np.ndarray:

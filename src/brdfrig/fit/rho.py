@@ -330,18 +330,17 @@ def shares_shape(kind: int, params: np.ndarray) -> bool:
     return bool(np.all(params[:, shape] == params[0, shape]))
 
 
-def kernel_rows(brdf, channels: int, lightings: int = 1) -> tuple[np.ndarray, bool]:
-    """``brdf.kernel_params()`` as contiguous float64 rows (``channels``, P), one row repeated to every channel of a
-    lighting and the rows repeated to each of ``lightings`` (:func:`brdfrig.fit.scene.stack_lightings`), and
-    :func:`shares_shape` of them: what the render kernels take.  ValueError if the channel counts differ."""
+def kernel_rows(brdf, env) -> tuple[np.ndarray, bool]:
+    """``brdf.kernel_params()`` as contiguous float64 rows (``env.channels``, P), one row repeated to every channel of
+    a lighting and the rows repeated to each of ``env.lightings`` (:func:`brdfrig.fit.scene.stack_lightings`), and
+    :func:`shares_shape` of them: what the render kernels take.  ValueError if the channel counts differ
+    (:meth:`brdfrig.fit.scene.Environment.check_channels`)."""
     params = np.asarray(brdf.kernel_params(), dtype=np.float64)
-    per_lighting = channels // lightings
+    per_lighting = env.channels // env.lightings
     if params.shape[0] == 1 and per_lighting > 1:
         params = np.repeat(params, per_lighting, axis=0)
-    if params.shape[0] * lightings != channels:
-        raise ValueError(f"BRDF has {params.shape[0]} channels but the environment has {channels}"
-                         + (f" ({lightings} lightings)" if lightings > 1 else ""))
-    params = np.tile(params, (lightings, 1))  # a new C-contiguous array
+    env.check_channels(params.shape[0])
+    params = np.tile(params, (env.lightings, 1))  # a new C-contiguous array
     return params, shares_shape(int(brdf.kind), params)
 
 

@@ -65,6 +65,13 @@ class Environment:
     def channels(self) -> int:
         return self.radiance.shape[1]
 
+    def check_channels(self, brdf_channels: int) -> None:
+        """ValueError unless a BRDF of ``brdf_channels`` channels fits this environment: one per channel of each of
+        its :attr:`lightings`."""
+        if brdf_channels * self.lightings != self.channels:
+            raise ValueError(f"BRDF has {brdf_channels} channels but the environment has {self.channels}"
+                             + (f" ({self.lightings} lightings)" if self.lightings > 1 else ""))
+
     def rotated(self, rotation: np.ndarray) -> "Environment":
         """The same lighting turned by the (3, 3) rotation matrix ``rotation`` (directions ``rotation @ d``).
 
