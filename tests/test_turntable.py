@@ -25,7 +25,10 @@ SAFE = {**FAST, "reply_timeout_s": 1.0, "stall_timeout_s": 1.0, "move_margin_s":
 
 
 def fast_sim(**kw) -> GrblSimulator:
-    """A fast simulator; homing lasts 2 status polls on the virtual clock (``tick_s``), 20 ms in real time."""
+    """A fast simulator; homing lasts 2 status polls on the virtual clock (``tick_s``), 20 ms in real time.
+
+    Tests whose subject is not the wall clock pass ``tick_s``: homing and motion then advance per status report,
+    whatever the machine's load."""
     opts = dict(steps_per_degree=SPD, backlash_deg=0.5, max_rate_deg_s=1e5,
                 homing_time_s=0.002 if kw.get("tick_s") else 0.02, reconnect_delay_s=0.01)
     opts.update(kw)
@@ -66,7 +69,7 @@ def test_home_move_and_readback_match_the_mechanics():
 
 def test_without_compensation_the_simulated_play_shows():
     """Oracle for the mechanics: coming down without compensation leaves the table ``play`` above target."""
-    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, 0.0, **SAFE) as table:
+    with fast_sim(tick_s=0.001) as sim, GrblTurntable(sim.port, 115200, SPD, 0.0, **SAFE) as table:
         table.home()
         table.move_to(30.0)
         table.move_to(20.0)
@@ -294,7 +297,7 @@ def test_impossible_settings_are_refused_before_touching_the_port(kwargs, name):
 
 
 def test_non_finite_target_is_refused_and_table_stays_put():
-    with fast_sim() as sim, GrblTurntable(sim.port, 115200, SPD, **SAFE) as table:
+    with fast_sim(tick_s=0.001) as sim, GrblTurntable(sim.port, 115200, SPD, **SAFE) as table:
         table.home()
         table.move_to(5.0)
         with pytest.raises(ValueError, match="angle"):
@@ -303,7 +306,8 @@ def test_non_finite_target_is_refused_and_table_stays_put():
 
 
 def test_firmware_steps_per_unit_is_corrected_on_connect():
-    with fast_sim(firmware_steps_per_degree=250.0) as sim, GrblTurntable(sim.port, 115200, SPD, **SAFE) as table:
+    with fast_sim(firmware_steps_per_degree=250.0, tick_s=0.001) as sim, \
+            GrblTurntable(sim.port, 115200, SPD, **SAFE) as table:
         table.home()
         assert table.move_to(90.0) == 90.0 and sim.table_angle_deg == 90.0
 
