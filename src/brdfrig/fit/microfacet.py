@@ -153,10 +153,8 @@ class MicrofacetBRDF:
         mirror direction.
         """
         rows = max(PREDICT_MIN_ROWS, math.ceil(2 * math.pi / float(np.min(self.analytic.alpha))))
-        if len(env.solid_angle) > 2 * rows * rows:
-            out = self.analytic.predict(coarsen_environment(env, rows), normals)
-        else:
-            out = render_sharp(self.analytic, normals, env, 0.0, 1, merge_cone(env))
+        lobe_env = coarsen_environment(env, rows) if len(env.solid_angle) > 2 * rows * rows else env
+        out = render_sharp(self.analytic, normals, lobe_env, 0.0, 1, merge_cone(lobe_env))
         return out if self.series is None else out + self.series.predict(env, normals)
 
     def evaluate(self, theta_i, theta_o, delta_phi) -> np.ndarray:
