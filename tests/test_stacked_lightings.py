@@ -47,6 +47,8 @@ def _brdfs():
         "sheen": SheenBRDF([0.2, 0.4, 0.6], fuzz_color=[0.6, 0.2, 0.1], fuzz_roughness=0.7, specular_roughness=0.4),
         "ggx": ggx,  # cell centres
         "microfacet": MicrofacetBRDF(ggx),
+        "microfacet, roughness per channel": MicrofacetBRDF(GGX(alpha=(0.2, 0.35, 0.5), f0=0.04, diffuse=(0.5, 0.3, 0.2))),
+        "ggx, one row for every channel": GGX(alpha=0.3, f0=0.04, diffuse=0.4),
     }
 
 

@@ -55,9 +55,9 @@ def render_kernel(
 
     Parameters
     ----------
-    kind, params : int, (C, NUM_PARAMS) float64
+    kind, params : int, (R, NUM_PARAMS) float64
         The BRDF as :func:`brdfrig.fit.analytic.rho_channel` takes it; channel ``c`` of
-        the output uses ``params[c]`` and ``weighted_radiance[:, c]``.
+        the output uses ``params[c mod R]`` and ``weighted_radiance[:, c]`` (:func:`brdfrig.fit.rho.kernel_rows`).
     normals : (N, 3) float64
         Unit normals.
     dirs : (M, 3) float64
@@ -75,7 +75,8 @@ def render_kernel(
     """
     n_pix = normals.shape[0]
     n_env = dirs.shape[0]
-    nc = params.shape[0]
+    nr = params.shape[0]
+    nc = weighted_radiance.shape[1]
     out = np.zeros((n_pix, nc))
     cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
     for i in numba.prange(n_pix):
@@ -84,7 +85,7 @@ def render_kernel(
         if cos_o <= 0.0:
             continue
         acc = np.zeros(nc)
-        val = np.empty(nc)
+        val = np.empty(nr)
         view_terms = rho_view(kind, params, shared, cos_o)
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
@@ -92,7 +93,7 @@ def render_kernel(
                 continue
             rho_channels(kind, params, shared, cos_i, cos_o, cos_io[j], view_terms, val)
             for c in range(nc):
-                acc[c] += weighted_radiance[j, c] * val[c] * cos_i
+                acc[c] += weighted_radiance[j, c] * val[c % nr] * cos_i
         for c in range(nc):
             out[i, c] = acc[c]
     return out
@@ -225,10 +226,12 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
 def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray, shared: bool) -> np.ndarray:
-    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of an analytic kind, view +z
-    (``shared``: :func:`brdfrig.fit.rho.shares_shape`)."""
+    """Sharp-lobe quadrature (:func:`brdfrig.fit.quadrature.lobe_samples`) of an analytic kind, view +z; channel
+    ``c`` of the lighting uses row ``c mod R`` of ``params`` (:func:`brdfrig.fit.rho.kernel_rows`; ``shared``:
+    :func:`brdfrig.fit.rho.shares_shape`)."""
     n_pix = normals.shape[0]
-    nc = params.shape[0]
+    nr = params.shape[0]
+    nc = q.wrad.shape[1]
     out = np.zeros((n_pix, nc))
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
@@ -236,13 +239,13 @@ def _sharp_kernel(kind: int, params: np.ndarray, q, normals: np.ndarray, shared:
             continue
         dirs, wrad = lobe_samples(q, nx, ny, nz, True)
         acc = np.zeros(nc)
-        val = np.empty(nc)
+        val = np.empty(nr)
         view_terms = rho_view(kind, params, shared, nz)
         for k in range(dirs.shape[0]):
             cos_i = nx * dirs[k, 0] + ny * dirs[k, 1] + nz * dirs[k, 2]
             rho_channels(kind, params, shared, cos_i, nz, dirs[k, 2], view_terms, val)
             for c in range(nc):
-                acc[c] += wrad[k, c] * val[c] * cos_i
+                acc[c] += wrad[k, c] * val[c % nr] * cos_i
         out[i] = acc
     return out
 

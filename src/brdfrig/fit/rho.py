@@ -331,16 +331,13 @@ def shares_shape(kind: int, params: np.ndarray) -> bool:
 
 
 def kernel_rows(brdf, env) -> tuple[np.ndarray, bool]:
-    """``brdf.kernel_params()`` as contiguous float64 rows (``env.channels``, P), one row repeated to every channel of
-    a lighting and the rows repeated to each of ``env.lightings`` (:func:`brdfrig.fit.scene.stack_lightings`), and
-    :func:`shares_shape` of them: what the render kernels take.  ValueError if the channel counts differ
+    """``brdf.kernel_params()`` as contiguous float64 rows (R, P) and :func:`shares_shape` of them: what the render
+    kernels take.  A kernel lights channel ``c`` of ``env`` with row ``c mod R``: one row serves every channel, R
+    rows one lighting's channels, repeated over ``env.lightings`` (:func:`brdfrig.fit.scene.stack_lightings`), so
+    each distinct row is evaluated once per sample.  ValueError if the channel counts differ
     (:meth:`brdfrig.fit.scene.Environment.check_channels`)."""
-    params = np.asarray(brdf.kernel_params(), dtype=np.float64)
-    per_lighting = env.channels // env.lightings
-    if params.shape[0] == 1 and per_lighting > 1:
-        params = np.repeat(params, per_lighting, axis=0)
-    env.check_channels(params.shape[0])
-    params = np.tile(params, (env.lightings, 1))  # a new C-contiguous array
+    params = np.ascontiguousarray(np.asarray(brdf.kernel_params(), dtype=np.float64))
+    env.check_channels(env.channels // env.lightings if params.shape[0] == 1 else params.shape[0])
     return params, shares_shape(int(brdf.kind), params)
 
 
