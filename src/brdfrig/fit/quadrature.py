@@ -311,6 +311,15 @@ def _block_states(q, rx, ry, rz, nx, ny, nz, horizon):
     return states
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _unit_cell(u, t, w, merging):
+    """Cell index of cell ``t`` of unit ``u`` of the sample loops on a map ``w`` cells wide: cell ``u`` itself, or,
+    when blocks merge, cell ``t`` (row-major, 0-3) of 2 x 2 block ``u`` (blocks row-major)."""
+    if not merging:
+        return u
+    return 2 * (u // (w // 2)) * w + 2 * (u % (w // 2)) + (t & 1) + (t >> 1) * w
+
+
 @numba.njit(cache=True, fastmath=False)
 def _count(q, states, rx, ry, rz, nx, ny, nz, horizon):
     """Number of samples for mirror ``r`` (map frame), normal ``n`` and block ``states`` (upper bound if ``horizon``)."""
@@ -319,15 +328,13 @@ def _count(q, states, rx, ry, rz, nx, ny, nz, horizon):
     count = 0
     merging = states.shape[0] > 0
     for u in range(states.shape[0] if merging else q.dirs.shape[0]):
-        j0, cells = u, 1  # as in lobe_samples
         if merging:
             if states[u] == 1:
                 count += 1
             if states[u] != 0:
                 continue
-            j0, cells = 2 * (u // (w // 2)) * w + 2 * (u % (w // 2)), 4
-        for t in range(cells):
-            j = j0 + (t & 1) + (t >> 1) * w
+        for t in range(4 if merging else 1):
+            j = _unit_cell(u, t, w, merging)
             s = _cell_subdiv(q, rx, ry, rz, j)
             if s > 1:
                 count += s * _cell_columns(j // w, h, s)
@@ -376,8 +383,7 @@ def lobe_samples(q, nx, ny, nz, horizon=True):
     k = 0
     merging = states.shape[0] > 0
     for u in range(states.shape[0] if merging else q.dirs.shape[0]):
-        j0, cells = u, 1  # unit u: cell u, or block u's cells (row-major) when blocks merge
-        if merging:
+        if merging:  # unit u: block u, else cell u
             if states[u] == 1:  # one sample for the block
                 bx, by, bz = q.block_dirs[u, 0], q.block_dirs[u, 1], q.block_dirs[u, 2]
                 dirs[k, 0], dirs[k, 1], dirs[k, 2] = bx, by, bz
@@ -388,9 +394,8 @@ def lobe_samples(q, nx, ny, nz, horizon=True):
                 k += 1
             if states[u] != 0:
                 continue
-            j0, cells = 2 * (u // (w // 2)) * w + 2 * (u % (w // 2)), 4
-        for t in range(cells):
-            j = j0 + (t & 1) + (t >> 1) * w
+        for t in range(4 if merging else 1):
+            j = _unit_cell(u, t, w, merging)
             s = _cell_subdiv(q, rx, ry, rz, j)
             if s > 1:
                 row, col = j // w, j % w
