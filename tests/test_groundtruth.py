@@ -121,7 +121,7 @@ def test_real_probe_lambertian_matches_sh_irradiance(real_probes):
 
 
 def test_ggx_basis_recombines_to_the_ggx_render():
-    from brdfrig.fit.groundtruth import render_ggx_basis
+    from brdfrig.fit.columns import render_ggx_basis
 
     dirs, omega = _hemisphere_rule(np.array([0.0, 0.0, 1.0]), n_mu=12, n_phi=24)
     rad = 1.0 + np.abs(dirs) @ np.array([[1.0, 0.2], [0.5, 2.0], [0.1, 0.3]])

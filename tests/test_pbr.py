@@ -245,13 +245,14 @@ def test_channels_share_the_shape_to_the_last_bit(name):
 def test_fuzz_column_is_the_sheen_lobe():
     """The sheen fit's fuzz column equals the unit-colour fuzz layer rendered by the generic kernel (to rounding:
     the two multiply the cosine in another order)."""
-    from brdfrig.fit.groundtruth import render_fuzz, render_kernel, _kernel_inputs
+    from brdfrig.fit.columns import render_fuzz
+    from brdfrig.fit.groundtruth import kernel_inputs, render_kernel
     from brdfrig.fit.pbr import layered_rows
     from brdfrig.fit.rho import KIND_LAYERED
 
     env, _, normals = _case(size=16)
     row = layered_rows(np.array([[0.0, 0.0, 0.0, 1.0]]), 0.1, 1.5, 0.3, False, 1.0)
-    n, dirs, weighted, view = _kernel_inputs(normals, env, (0.0, 0.0, 1.0))
+    n, dirs, weighted, view = kernel_inputs(normals, env, (0.0, 0.0, 1.0))
     generic = render_kernel(KIND_LAYERED, np.repeat(row, env.channels, axis=0), n, dirs, weighted, view)
     fuzz = render_fuzz(0.3, normals, env)
     assert np.abs(fuzz).max() > 0

@@ -33,12 +33,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe_given, kernel_rows, rho_channels, rho_view, sheen_lambda, smith_lambda
+from brdfrig.fit.rho import kernel_rows, rho_channels, rho_view
 from brdfrig.fit.merl import half_diff, table_lookup
 from brdfrig.fit.quadrature import DEFAULT_CONE_DEG, DEFAULT_SUBDIV, lobe_quadrature, lobe_samples
 from brdfrig.fit.scene import Environment
 
-__all__ = ["render_groundtruth", "render_kernel", "render_sharp", "render_ggx_basis", "render_fuzz", "render_tabulated", "render_rho"]
+__all__ = ["kernel_inputs", "render_groundtruth", "render_kernel", "render_sharp", "render_tabulated", "render_rho"]
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
@@ -99,65 +99,7 @@ def render_kernel(
     return out
 
 
-@numba.njit(cache=True, fastmath=False, parallel=True)
-def _ggx_basis_kernel(
-    alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray
-) -> np.ndarray:
-    """Quadrature of the two linear parts of the GGX lobe (see :func:`render_ggx_basis`)."""
-    n_pix = normals.shape[0]
-    n_env = dirs.shape[0]
-    nc = weighted_radiance.shape[1]
-    out = np.zeros((n_pix, nc, 2))
-    cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
-    for i in numba.prange(n_pix):
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        cos_o = nx * view[0] + ny * view[1] + nz * view[2]
-        if cos_o <= 0.0:
-            continue
-        acc = np.zeros((nc, 2))
-        lambda_o = smith_lambda(cos_o, alpha)
-        for j in range(n_env):
-            cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
-            if cos_i <= 0.0:
-                continue
-            lobe, cos_d = ggx_lobe_given(cos_i, cos_o, cos_io[j], alpha, lambda_o)
-            b1 = lobe * (1.0 - cos_d) ** 5 * cos_i
-            b0 = lobe * cos_i - b1
-            for c in range(nc):
-                lw = weighted_radiance[j, c]
-                acc[c, 0] += lw * b0
-                acc[c, 1] += lw * b1
-        out[i] = acc
-    return out
-
-
-@numba.njit(cache=True, fastmath=False, parallel=True)
-def _fuzz_kernel(alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray) -> np.ndarray:
-    """Quadrature of the unit-colour Charlie sheen lobe (see :func:`render_fuzz`)."""
-    n_pix = normals.shape[0]
-    n_env = dirs.shape[0]
-    nc = weighted_radiance.shape[1]
-    out = np.zeros((n_pix, nc))
-    cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
-    for i in numba.prange(n_pix):
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        cos_o = nx * view[0] + ny * view[1] + nz * view[2]
-        if cos_o <= 0.0:
-            continue
-        lambda_o = sheen_lambda(cos_o, alpha)
-        acc = np.zeros(nc)
-        for j in range(n_env):
-            cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
-            if cos_i <= 0.0:
-                continue
-            val = charlie_sheen_given(cos_i, cos_o, cos_io[j], alpha, lambda_o) * cos_i
-            for c in range(nc):
-                acc[c] += weighted_radiance[j, c] * val
-        out[i] = acc
-    return out
-
-
-def _kernel_inputs(normals, env: Environment, view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def kernel_inputs(normals, env: Environment, view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Contiguous float64 (normals, seen dirs, radiance * solid angle, view) for the kernels."""
     normals = np.ascontiguousarray(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
     view = np.asarray(view, dtype=np.float64).reshape(3)
@@ -166,38 +108,6 @@ def _kernel_inputs(normals, env: Environment, view) -> tuple[np.ndarray, np.ndar
     dirs = np.ascontiguousarray(np.asarray(env.dirs, dtype=np.float64)[keep])
     weighted = np.ascontiguousarray(np.asarray(env.radiance, dtype=np.float64)[keep] * omega[keep, None])
     return normals, dirs, weighted, view
-
-
-def render_ggx_basis(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Renders of the two parts of a GGX lobe that enter linearly, for one roughness ``alpha``.
-
-    The lobe of ``GGX(alpha, f0, diffuse=0, f90)`` renders to
-    ``f0 * B[..., 0] + f90 * B[..., 1]``: basis 0 is the lobe weighted by
-    ``1 - (1 - h.wi)^5``, basis 1 the lobe weighted by ``(1 - h.wi)^5``.  One
-    pass computes both (the microfacet fit's inner loop), sharing the lobe evaluation.
-
-    Parameters and conventions as :func:`render_groundtruth`.
-
-    Returns
-    -------
-    (N, C, 2) float64.
-    """
-    normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
-    return _ggx_basis_kernel(float(alpha), normals, dirs, weighted, view)
-
-
-def render_fuzz(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Renders of the unit-colour Charlie sheen lobe of roughness ``alpha`` (:func:`brdfrig.fit.rho.charlie_sheen`),
-    the fuzz column of the sheen fit; its ``Lambda(cos_o)`` is computed once per pixel.
-
-    Parameters and conventions as :func:`render_groundtruth`.
-
-    Returns
-    -------
-    (N, C) float64.
-    """
-    normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
-    return _fuzz_kernel(float(alpha), normals, dirs, weighted, view)
 
 
 def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -219,7 +129,7 @@ def render_groundtruth(brdf, normals: np.ndarray, env: Environment, view=(0.0, 0
     -------
     (N, C) float64 linear radiance, 0 where ``normal . view <= 0``.
     """
-    normals, dirs, weighted, view = _kernel_inputs(normals, env, view)
+    normals, dirs, weighted, view = kernel_inputs(normals, env, view)
     params, shared = kernel_rows(brdf, env)
     return render_kernel(int(brdf.kind), params, normals, dirs, weighted, view, shared)
 

@@ -70,7 +70,8 @@ from scipy.optimize import brentq, minimize_scalar
 from brdfrig.errors import InputError
 from brdfrig.fit.analytic import GGX, Lambertian, OrenNayar, oren_nayar_ab
 from brdfrig.fit.brdf import register_model
-from brdfrig.fit.groundtruth import render_ggx_basis, render_groundtruth, render_sharp
+from brdfrig.fit.columns import render_ggx_basis
+from brdfrig.fit.groundtruth import render_groundtruth, render_sharp
 from brdfrig.fit.lsq import polytope_lsq
 from brdfrig.fit.models import DiffuseBRDF
 from brdfrig.fit.memo import RENDERS

@@ -63,7 +63,8 @@ from brdfrig.fit.analytic import (
     f82_q,
     table_lookup,
 )
-from brdfrig.fit.groundtruth import _kernel_inputs, render_fuzz
+from brdfrig.fit.columns import render_fuzz
+from brdfrig.fit.groundtruth import kernel_inputs
 from brdfrig.fit.lsq import box_lsq, polytope_lsq
 from brdfrig.fit.memo import RENDERS
 from brdfrig.fit.quadrature import lobe_quadrature, lobe_samples, merge_cone
@@ -183,7 +184,7 @@ class _Data:
         self.cos_o = np.concatenate([n[:, 2] for n in self.normals])
         self.geometry = [content_digest(n, e) for n, e in zip(self.normals, envs)]
         self.renders = 0
-        self.hats = np.concatenate([self._kept(("hats", g), _hat_kernel, *_kernel_inputs(n, e, (0.0, 0.0, 1.0)))
+        self.hats = np.concatenate([self._kept(("hats", g), _hat_kernel, *kernel_inputs(n, e, (0.0, 0.0, 1.0)))
                                     for n, e, g in zip(self.normals, envs, self.geometry)]) * self.sqrt_w[:, None, None, None]
         self._quadratures: dict = {}
 
