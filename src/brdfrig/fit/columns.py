@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 from brdfrig.fit.groundtruth import kernel_inputs
-from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe_given, sheen_lambda, smith_lambda
+from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe_given, sheen_lambda, sheen_table, sheen_visibility, smith_lambda
 from brdfrig.fit.scene import Environment
 
 __all__ = ["render_ggx_basis", "render_fuzz"]
@@ -60,6 +60,7 @@ def _fuzz_kernel(alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_r
     nc = weighted_radiance.shape[1]
     out = np.zeros((n_pix, nc))
     cos_io = dirs[:, 0] * view[0] + dirs[:, 1] * view[1] + dirs[:, 2] * view[2]
+    table = sheen_table(alpha)
     for i in numba.prange(n_pix):
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         cos_o = nx * view[0] + ny * view[1] + nz * view[2]
@@ -71,7 +72,7 @@ def _fuzz_kernel(alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_r
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
-            val = charlie_sheen_given(cos_i, cos_o, cos_io[j], alpha, lambda_o) * cos_i
+            val = charlie_sheen_given(cos_i, cos_o, cos_io[j], alpha, lambda_o, sheen_visibility(table, cos_i)) * cos_i
             for c in range(nc):
                 acc[c] += weighted_radiance[j, c] * val
         out[i] = acc
@@ -98,7 +99,9 @@ def render_ggx_basis(alpha: float, normals: np.ndarray, env: Environment, view=(
 
 def render_fuzz(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Renders of the unit-colour Charlie sheen lobe of roughness ``alpha`` (:func:`brdfrig.fit.rho.charlie_sheen`),
-    the fuzz column of the sheen fit; its ``Lambda(cos_o)`` is computed once per pixel.
+    the fuzz column of the sheen fit; its ``Lambda(cos_o)`` is computed once per pixel and ``1 / (1 + Lambda(cos_i))``
+    interpolated in a :func:`brdfrig.fit.rho.sheen_table` (within 2e-7, so each sample's term within
+    ``2e-7 D / (4 cos_o)`` of the exact one).
 
     Parameters and conventions as :func:`brdfrig.fit.groundtruth.render_groundtruth`.
 
