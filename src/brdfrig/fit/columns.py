@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 from brdfrig.fit.groundtruth import kernel_inputs
-from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe_given, sheen_lambda, sheen_table, sheen_visibility, smith_lambda
+from brdfrig.fit.rho import charlie_sheen_given, ggx_lobe_given, sheen_table, sheen_visibility, smith_lambda
 from brdfrig.fit.scene import Environment
 
 __all__ = ["render_ggx_basis", "render_fuzz"]
@@ -66,13 +66,13 @@ def _fuzz_kernel(alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_r
         cos_o = nx * view[0] + ny * view[1] + nz * view[2]
         if cos_o <= 0.0:
             continue
-        lambda_o = sheen_lambda(cos_o, alpha)
+        vis_o = sheen_visibility(table, 0, cos_o)
         acc = np.zeros(nc)
         for j in range(n_env):
             cos_i = nx * dirs[j, 0] + ny * dirs[j, 1] + nz * dirs[j, 2]
             if cos_i <= 0.0:
                 continue
-            val = charlie_sheen_given(cos_i, cos_o, cos_io[j], alpha, lambda_o, sheen_visibility(table, cos_i)) * cos_i
+            val = charlie_sheen_given(cos_i, cos_o, cos_io[j], alpha, sheen_visibility(table, 0, cos_i), vis_o) * cos_i
             for c in range(nc):
                 acc[c] += weighted_radiance[j, c] * val
         out[i] = acc
@@ -99,9 +99,8 @@ def render_ggx_basis(alpha: float, normals: np.ndarray, env: Environment, view=(
 
 def render_fuzz(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Renders of the unit-colour Charlie sheen lobe of roughness ``alpha`` (:func:`brdfrig.fit.rho.charlie_sheen`),
-    the fuzz column of the sheen fit; its ``Lambda(cos_o)`` is computed once per pixel and ``1 / (1 + Lambda(cos_i))``
-    interpolated in a :func:`brdfrig.fit.rho.sheen_table` (within 2e-7, so each sample's term within
-    ``2e-7 D / (4 cos_o)`` of the exact one).
+    the fuzz column of the sheen fit, reading ``1 / (1 + Lambda)`` from a :func:`brdfrig.fit.rho.sheen_table` as the
+    layered kind does (its value at ``cos_o`` once per pixel).
 
     Parameters and conventions as :func:`brdfrig.fit.groundtruth.render_groundtruth`.
 

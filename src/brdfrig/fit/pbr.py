@@ -70,6 +70,7 @@ from brdfrig.fit.analytic import (
 from brdfrig.fit.brdf import register_model
 from brdfrig.fit.groundtruth import render_sharp
 from brdfrig.fit.quadrature import merge_cone
+from brdfrig.fit.rho import LAYERED_SHEEN, sheen_table
 
 __all__ = [
     "COS_NODES",
@@ -277,7 +278,8 @@ def layered_rows(
     rows[:, 5] = amplitudes[:, 3]
     rows[:, 3], rows[:, 4], rows[:, 6], rows[:, 7] = alpha, ior, fuzz_alpha, 1.0 / _base_norm(t)
     rows[:, LAYERED_HEAD : LAYERED_HEAD + TABLE_SIZE] = t
-    rows[:, LAYERED_HEAD + TABLE_SIZE :] = np.clip(t_fuzz, 0.0, 1.0)
+    rows[:, LAYERED_HEAD + TABLE_SIZE : LAYERED_SHEEN] = np.clip(t_fuzz, 0.0, 1.0)
+    rows[:, LAYERED_SHEEN:] = sheen_table(fuzz_alpha)
     if not coat:
         rows[:, 2] = 0.0
     if fuzz_weight <= 0:
