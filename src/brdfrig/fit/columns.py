@@ -53,7 +53,9 @@ def _ggx_basis_kernel(
 
 
 @numba.njit(cache=True, fastmath=False, parallel=True)
-def _fuzz_kernel(alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray) -> np.ndarray:
+def _fuzz_kernel(
+    alpha: float, normals: np.ndarray, dirs: np.ndarray, weighted_radiance: np.ndarray, view: np.ndarray
+) -> np.ndarray:
     """Quadrature of the unit-colour Charlie sheen lobe (see :func:`render_fuzz`)."""
     n_pix = normals.shape[0]
     n_env = dirs.shape[0]

@@ -35,7 +35,8 @@ gives the amplitudes; ``s_c`` follows from ``B/A`` (clamped to
 linear unknowns and one roughness per channel against thousands of pixels.
 
 Speed: the base's and the lobe's renders are brute-force quadrature
-(:mod:`brdfrig.fit.groundtruth`) on a pixel subsample under a coarsened copy of each environment:
+(:mod:`brdfrig.fit.groundtruth`; the lobe's: :func:`brdfrig.fit.columns.render_ggx_basis`) on a pixel
+subsample under a coarsened copy of each environment:
 
 - pixels: at most ``max_pixels`` (default 3000) drawn uniformly from the
   weighted pixels of all scenes.  With about a dozen unknowns per channel the

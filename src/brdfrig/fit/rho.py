@@ -290,7 +290,8 @@ def _layered_terms(p: np.ndarray, cos_i: float, cos_o: float, cos_io: float, vie
         m = min(table_lookup(p, LAYERED_HEAD + TABLE_SIZE, cos_i), m_o)
         fres = fresnel_dielectric(cos_d, p[4])
     if fuzz:
-        sheen = charlie_sheen_given(cos_i, cos_o, cos_io, p[6], sheen_visibility(p, LAYERED_SHEEN, cos_i), vis_o)
+        vis_i = sheen_visibility(p, LAYERED_SHEEN, cos_i)
+        sheen = charlie_sheen_given(cos_i, cos_o, cos_io, p[6], vis_i, vis_o)
     return retro, t, lobe, m, fres, sheen
 
 
