@@ -112,5 +112,3 @@ def render_fuzz(alpha: float, normals: np.ndarray, env: Environment, view=(0.0, 
     """
     normals, dirs, weighted, view = kernel_inputs(normals, env, view)
     return _fuzz_kernel(float(alpha), normals, dirs, weighted, view)
-
-
